@@ -1,0 +1,23 @@
+# Quick start: `make demo` (set up, run the demo, print the summary, write the plot)
+#              `make test` (set up, run the whole test suite)
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+
+.PHONY: demo test setup clean
+
+$(BIN)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --disable-pip-version-check -e '.[plot,test]'
+	touch $@
+
+setup: $(BIN)/.installed
+
+demo: $(BIN)/.installed
+	$(BIN)/vflpcd sim carsim_avoidance --controller pure_pursuit --out results/demo
+
+test: $(BIN)/.installed
+	$(BIN)/pytest -q
+
+clean:
+	rm -rf $(VENV) results .pytest_cache *.egg-info

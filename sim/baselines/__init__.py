@@ -1,0 +1,44 @@
+"""Baseline controllers, all behind the ``Controller`` protocol, chosen by name."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+from vflpcd.core.ports import Controller
+from vflpcd.errors import ConfigError
+
+
+def _pure_pursuit(scenario) -> Controller:
+    from sim.baselines.pure_pursuit import PurePursuit, PurePursuitGains
+    from sim.plants.dynamic_bicycle import BicycleConfig
+
+    return PurePursuit(scenario.path, scenario.v_desired, scenario.a_lat_max,
+                       BicycleConfig.load(scenario.params), PurePursuitGains.load())
+
+
+def _pd_tracker(scenario) -> Controller:
+    from sim.baselines.pd_tracker import PDGains, PDTracker
+
+    return PDTracker(scenario.path, scenario.v_desired, scenario.a_lat_max, PDGains.load())
+
+
+# name -> (factory(scenario), platforms it drives)
+CONTROLLERS: dict[str, tuple[Callable[..., Controller], tuple[str, ...]]] = {
+    "pure_pursuit": (_pure_pursuit, ("ground",)),
+    "pd_tracker": (_pd_tracker, ("aerial",)),
+}
+
+DEFAULT_CONTROLLER = {"ground": "pure_pursuit", "aerial": "pd_tracker"}
+
+
+def make_controller(name: str, scenario) -> Controller:
+    """Build controller ``name`` for ``scenario``; ConfigError if unknown or for another platform."""
+    if name not in CONTROLLERS:
+        raise ConfigError("command line", "--controller",
+                          f"unknown controller {name!r} (available: {', '.join(sorted(CONTROLLERS))})")
+    factory, platforms = CONTROLLERS[name]
+    if scenario.platform not in platforms:
+        raise ConfigError("command line", "--controller",
+                          f"{name} drives {'/'.join(platforms)} robots but scenario {scenario.name!r} is "
+                          f"{scenario.platform} (try {DEFAULT_CONTROLLER[scenario.platform]})")
+    return factory(scenario)

@@ -1,0 +1,236 @@
+"""Scenarios: TOML data in ``config/scenarios/`` turned into validated objects.
+
+A scenario names the plant and its parameter set, the reference path (analytic or a
+waypoint file), the start state, the desired speed and lateral-acceleration limit, the
+obstacles (static, constant-velocity, triggered), the metric weights and the run limits.
+The file format is documented in ``config/scenarios/README.md``. Every problem is a
+``ConfigError`` naming the file and the field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from sim.footprint import Footprint
+from sim.plants.dynamic_bicycle import BicycleConfig
+from vflpcd.core.path import ReferencePath
+from vflpcd.core.shapes import SHAPES_2D, SHAPES_3D, shape_from_table
+from vflpcd.errors import ConfigError
+from vflpcd.paths import config_dir
+from vflpcd.tomlread import Table, load_toml
+
+PLATFORMS = {"ground": ("dynamic_bicycle", 2, 2), "aerial": ("quadrotor", 3, 3)}  # plant, dim, n_u
+TRIGGERS = ("always", "move", "appear")
+
+
+@dataclass(frozen=True)
+class ObstacleSpec:
+    """One scenario obstacle: physical shape, initial centre (d,), yaw, velocity (d,), trigger."""
+
+    id: str
+    shape: object
+    center: np.ndarray
+    yaw: float
+    velocity: np.ndarray
+    trigger: str
+    trigger_distance: float
+
+
+@dataclass(frozen=True)
+class MetricWeights:
+    """q1, q2 of J_Lat and J_Heading, R (n_u, n_u) of J_Con."""
+
+    q1: float
+    q2: float
+    R: np.ndarray
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    file: Path
+    description: str
+    platform: str               # "ground" | "aerial"
+    plant: str                  # "dynamic_bicycle" | "quadrotor"
+    params: str                 # parameter set of the plant file
+    process_noise: bool
+    dim: int
+    path: ReferencePath
+    start: np.ndarray           # plant initial state: ground [X, Y, psi, vx], aerial [X, Y, Z, vx, vy, vz, yaw]
+    v_desired: float
+    a_lat_max: float
+    control_period: float
+    t_max: float
+    goal_tolerance: float
+    laps: int
+    obstacles: tuple[ObstacleSpec, ...]
+    weights: MetricWeights
+    footprint: Footprint
+
+    @property
+    def goal_progress(self) -> float:
+        """Arc length the robot must cover to complete the run (m)."""
+        if self.path.closed:
+            return self.laps * self.path.length
+        return self.path.length - self.goal_tolerance
+
+
+def scenario_file(name_or_path: str | Path) -> Path:
+    """A scenario name (``config/scenarios/<name>.toml``) or a path to a TOML file."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    return config_dir() / "scenarios" / f"{name_or_path}.toml"
+
+
+def available_scenarios() -> list[str]:
+    return sorted(p.stem for p in (config_dir() / "scenarios").glob("*.toml"))
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """Load and validate a scenario; raises ConfigError naming the file and field."""
+    file = scenario_file(name_or_path)
+    if not file.exists():
+        raise ConfigError(file, "<file>", f"no such scenario (available: {', '.join(available_scenarios())})")
+    root = Table(load_toml(file), file)
+    root.check_known({"name", "description", "platform", "control_period", "t_max",
+                      "vehicle", "path", "start", "speed", "goal", "metrics", "obstacles", "guidance"})
+    platform = root.string("platform", choices=tuple(PLATFORMS))
+    plant_name, dim, n_u = PLATFORMS[platform]
+
+    veh = root.table("vehicle")
+    veh.check_known({"plant", "params", "process_noise", "body_radius"})
+    plant = veh.string("plant", choices=(plant_name,))
+    params = veh.string("params", "nominal")
+    if platform == "ground":
+        bike = _bicycle_config(params, veh)
+        footprint = Footprint.rectangle(bike.body.length, bike.body.width,
+                                        bike.body.rear_overhang + bike.params.lr)
+    else:
+        footprint = Footprint.sphere(veh.number("body_radius", positive=True))
+
+    path = _load_path(root.table("path"), dim, file)
+
+    start_t = root.table("start")
+    start_t.check_known({"position", "yaw", "speed"})
+    pos = start_t.vector("position", dim)
+    yaw = start_t.number("yaw", 0.0)
+    speed = start_t.number("speed", 0.0, min=0.0)
+    if platform == "ground":
+        start = np.array([pos[0], pos[1], yaw, speed])
+    else:
+        v = speed * np.array([np.cos(yaw), np.sin(yaw), 0.0])
+        start = np.concatenate([pos, v, [yaw]])
+
+    spd = root.table("speed")
+    spd.check_known({"desired", "a_lat_max"})
+    goal = root.table("goal", {})
+    goal.check_known({"tolerance", "laps"})
+    metrics = root.table("metrics")
+    metrics.check_known({"q1", "q2", "R"})
+    R = metrics.matrix("R", n_u)
+    if R.shape != (n_u, n_u) or not np.allclose(R, R.T) or np.min(np.linalg.eigvalsh(R)) <= 0:
+        raise metrics.error("R", f"expected a symmetric positive definite {n_u}x{n_u} matrix")
+
+    obstacles = tuple(_load_obstacle(t, dim) for t in root.tables("obstacles", []))
+    ids = [o.id for o in obstacles]
+    for i, oid in enumerate(ids):
+        if ids.index(oid) != i:
+            raise ConfigError(file, f"obstacles[{i}].id", f"duplicate id {oid!r}")
+
+    scenario = Scenario(
+        name=root.string("name"), file=file, description=root.string("description", ""),
+        platform=platform, plant=plant, params=params,
+        process_noise=veh.boolean("process_noise", False), dim=dim, path=path, start=start,
+        v_desired=spd.number("desired", positive=True), a_lat_max=spd.number("a_lat_max", positive=True),
+        control_period=root.number("control_period", positive=True, max=1.0),
+        t_max=root.number("t_max", positive=True),
+        goal_tolerance=goal.number("tolerance", 1.0, positive=True),
+        laps=goal.integer("laps", 1, min=1), obstacles=obstacles,
+        weights=MetricWeights(q1=metrics.number("q1", min=0.0), q2=metrics.number("q2", min=0.0), R=R),
+        footprint=footprint)
+    _check_start_is_free(scenario)
+    return scenario
+
+
+def _bicycle_config(params: str, veh: Table) -> BicycleConfig:
+    try:
+        return BicycleConfig.load(params)
+    except ConfigError as exc:
+        if exc.field.startswith("params."):
+            raise veh.error("params", exc.message) from None
+        raise
+
+
+def _load_path(t: Table, dim: int, file: Path) -> ReferencePath:
+    kind = t.string("kind", choices=("line", "arc", "waypoints"))
+    if kind == "line":
+        t.check_known({"kind", "start", "end"})
+        start, end = t.vector("start", dim), t.vector("end", dim)
+        if np.linalg.norm(end - start) <= 0:
+            raise t.error("end", "expected an end point different from the start")
+        return ReferencePath.line(start, end)
+    if kind == "arc":
+        t.check_known({"kind", "center", "radius", "start_angle", "end_angle"})
+        if dim != 2:
+            raise t.error("kind", "an arc path is planar; use waypoints for a 3-D path")
+        a0, a1 = t.number("start_angle"), t.number("end_angle")
+        if a0 == a1:
+            raise t.error("end_angle", "expected an angle different from start_angle")
+        return ReferencePath.arc(t.vector("center", 2), t.number("radius", positive=True), a0, a1)
+    t.check_known({"kind", "points", "file", "closed"})
+    closed = t.boolean("closed", False)
+    if t.has("points") == t.has("file"):
+        raise t.error("points", "expected exactly one of `points` (inline) or `file` (CSV)")
+    if t.has("points"):
+        wp = t.matrix("points", dim, min_rows=2)
+    else:
+        wp_file = (file.parent / t.string("file")).resolve()
+        if not wp_file.is_file():
+            raise t.error("file", f"waypoint file not found: {wp_file}")
+        try:
+            wp = np.loadtxt(wp_file, delimiter=",", comments="#", ndmin=2)
+        except ValueError as exc:
+            raise t.error("file", f"{wp_file} is not a CSV of numbers ({exc})") from None
+        if wp.shape[1] != dim or wp.shape[0] < 2 or not np.all(np.isfinite(wp)):
+            raise t.error("file", f"{wp_file}: expected at least 2 rows of {dim} finite numbers, got shape {wp.shape}")
+    try:
+        return ReferencePath.from_waypoints(wp, closed=closed)
+    except ValueError as exc:
+        raise t.error("points" if t.has("points") else "file", str(exc)) from None
+
+
+def _load_obstacle(t: Table, dim: int) -> ObstacleSpec:
+    shapes = SHAPES_2D if dim == 2 else SHAPES_3D
+    kind = t.string("shape", choices=tuple(shapes))
+    size_keys = {f.name for f in fields(shapes[kind])}
+    t.check_known({"id", "shape", "center", "yaw", "velocity", "trigger", "trigger_distance"} | size_keys)
+    sizes = {k: t.number(k, positive=True) for k in sorted(size_keys)}
+    try:
+        shape = shape_from_table(kind, sizes)
+    except ValueError as exc:
+        raise t.error("shape", str(exc)) from None
+    trigger = t.string("trigger", "always", choices=TRIGGERS)
+    if trigger == "always":
+        if t.has("trigger_distance"):
+            raise t.error("trigger_distance", "only meaningful with trigger = \"move\" or \"appear\"")
+        trigger_distance = 0.0
+    else:
+        trigger_distance = t.number("trigger_distance", positive=True)
+    return ObstacleSpec(id=t.string("id"), shape=shape, center=t.vector("center", dim),
+                        yaw=t.number("yaw", 0.0), velocity=t.vector("velocity", dim, np.zeros(dim).tolist()),
+                        trigger=trigger, trigger_distance=trigger_distance)
+
+
+def _check_start_is_free(s: Scenario) -> None:
+    position, yaw = s.start[:s.dim], (s.start[2] if s.platform == "ground" else s.start[-1])
+    for i, o in enumerate(s.obstacles):
+        if o.trigger == "appear":
+            continue
+        gap = s.footprint.clearance(o.shape, o.center, o.yaw, position, yaw)
+        if gap < 0.0:
+            raise ConfigError(s.file, f"obstacles[{i}]",
+                              f"obstacle {o.id!r} covers the start position (clearance {gap:.2f} m)")

@@ -1,0 +1,36 @@
+"""`vflpcd sim` as a user runs it: a real process, its table, its files."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+VFLPCD = [sys.executable, "-m", "vflpcd.cli"]
+
+
+def test_sim_carsim_avoidance_pure_pursuit(tmp_path):
+    out = tmp_path / "run"
+    proc = subprocess.run(VFLPCD + ["sim", "carsim_avoidance", "--controller", "pure_pursuit", "--out", str(out)],
+                          capture_output=True, text=True, timeout=300, env={**os.environ, "MPLBACKEND": "Agg"})
+    assert proc.returncode == 0, proc.stderr
+    for label in ("J_MC", "L_p", "t_com", "t_cal median / p99", "min clearance", "collisions"):
+        assert label in proc.stdout
+    doc = json.loads((out / "results.json").read_text())
+    assert doc["scenario"] == "carsim_avoidance" and doc["controller"] == "pure_pursuit"
+    m = doc["metrics"]
+    assert m["outcome"] == "completed" and 240.0 < m["L_p"] < 260.0
+    assert len(m["min_clearance_per_obstacle"]) == 5
+    png = (out / "plot.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
+
+
+def test_bad_scenario_file_exits_2_in_one_line(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "x"\nplatform = "boat"\n')
+    proc = subprocess.run(VFLPCD + ["sim", str(bad)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert lines == [f"vflpcd: error: {bad}: platform: expected one of ground, aerial, got 'boat'"]
+    assert proc.stdout == ""
+    assert not Path("results").joinpath("x-pure_pursuit-s0").exists()

@@ -1,0 +1,55 @@
+import numpy as np
+import pytest
+
+from vflpcd.core.path import ReferencePath, progress_delta
+
+
+def test_arc_curvature_and_length():
+    p = ReferencePath.arc([1.0, 2.0], 10.0, 0.0, np.pi)
+    assert p.length == pytest.approx(10 * np.pi, rel=1e-4)
+    assert p.curvature == pytest.approx(np.full(len(p.s), 0.1), rel=1e-3)
+    cw = ReferencePath.arc([0.0, 0.0], 10.0, np.pi, 0.0)
+    assert cw.curvature == pytest.approx(np.full(len(cw.s), -0.1), rel=1e-3)
+
+
+def test_full_circle_is_closed_and_wraps():
+    p = ReferencePath.arc([0.0, 0.0], 5.0, 0.0, 2 * np.pi)
+    assert p.closed
+    assert p.point_at(p.length + 1.0) == pytest.approx(p.point_at(1.0))
+    assert progress_delta(p, 0.5, p.length - 0.5) == pytest.approx(1.0)
+
+
+def test_projection_on_a_line_uses_the_paper_sign():
+    p = ReferencePath.line([0.0, 0.0], [10.0, 0.0])
+    left = p.project([4.0, 1.5])
+    assert left.s == pytest.approx(4.0) and left.lateral == pytest.approx(-1.5)
+    right = p.project([4.0, -1.0])
+    assert right.lateral == pytest.approx(1.0) and right.heading == pytest.approx(0.0)
+
+
+def test_projection_window_keeps_progress_on_a_hairpin():
+    # out along y = 0, back along y = 3: a point at y = 1.4 is nearest to the outbound leg
+    wp = np.array([[0, 0], [20, 0], [23, 1.5], [20, 3], [0, 3]], float)
+    p = ReferencePath.from_waypoints(wp)
+    near_return = p.project([5.0, 1.6])
+    assert near_return.s > 25.0  # globally the return leg is nearer
+    windowed = p.project([5.0, 1.6], s_hint=4.0, back=5.0, ahead=5.0)
+    assert windowed.s == pytest.approx(5.0, abs=0.2)
+
+
+def test_waypoint_spline_passes_through_waypoints_and_3d_lateral_is_distance():
+    wp = np.array([[0, 0, 2], [12, 2, 2.5], [24, -1, 3], [36, 0, 3]], float)
+    p = ReferencePath.from_waypoints(wp, ds=0.05)
+    for w in wp:
+        assert p.project(w).lateral == pytest.approx(0.0, abs=2e-3)
+    off = p.project(wp[1] + [0, 0, 1.0])
+    assert off.lateral == pytest.approx(1.0, abs=0.02)
+
+
+def test_bad_points_raise():
+    with pytest.raises(ValueError):
+        ReferencePath(np.array([[0.0, 0.0]]))
+    with pytest.raises(ValueError):
+        ReferencePath(np.array([[0.0, 0.0], [np.nan, 1.0]]))
+    with pytest.raises(ValueError):
+        ReferencePath.from_waypoints(np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 1.0]]))

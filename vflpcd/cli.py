@@ -1,0 +1,76 @@
+"""The ``vflpcd`` command line: the composition root of the application."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from vflpcd.errors import ConfigError
+
+log = logging.getLogger("vflpcd")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="vflpcd", description="Vector Field-guided Learning Predictive Control")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("sim", help="run a scenario in closed loop, offline, as fast as possible")
+    p.add_argument("scenario", help="scenario name (config/scenarios/NAME.toml) or path to a TOML file")
+    p.add_argument("--controller", default=None,
+                   help="controller name (default: pure_pursuit on the ground, pd_tracker in the air)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random source (default 0)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="output folder for results.json and plot.png (default results/SCENARIO-CONTROLLER-sSEED)")
+    p.add_argument("--no-plot", action="store_true", help="skip the PNG")
+    p.set_defaults(func=cmd_sim)
+
+    p = sub.add_parser("scenarios", help="list the scenarios in config/scenarios")
+    p.set_defaults(func=cmd_scenarios)
+
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s %(message)s")
+    try:
+        return args.func(args)
+    except ConfigError as exc:
+        print(f"vflpcd: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def cmd_sim(args) -> int:
+    from sim.baselines import DEFAULT_CONTROLLER, make_controller
+    from sim.report import metrics_table, write_results
+    from sim.runner import run_closed_loop
+    from sim.scenarios import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    name = args.controller or DEFAULT_CONTROLLER[scenario.platform]
+    controller = make_controller(name, scenario)
+    record = run_closed_loop(scenario, controller, seed=args.seed)
+    out = args.out or Path("results") / f"{scenario.name}-{name}-s{args.seed}"
+    out.mkdir(parents=True, exist_ok=True)
+    print(metrics_table(record, scenario))
+    files = [write_results(record, scenario, out / "results.json")]
+    if not args.no_plot:
+        from sim.plot import plot_run
+
+        files.append(plot_run(record, scenario, out / "plot.png"))
+    for f in files:
+        print(f"wrote {f}")
+    return 0
+
+
+def cmd_scenarios(args) -> int:
+    from sim.scenarios import available_scenarios, load_scenario
+
+    for name in available_scenarios():
+        s = load_scenario(name)
+        print(f"{name:18s} {s.platform:6s} {s.path.length:7.1f} m  {len(s.obstacles):2d} obstacles  {s.description}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
