@@ -39,3 +39,11 @@ class Plant(Protocol):
     def heading(self) -> float:
         """Yaw angle in radians, wrapped to (-pi, pi]."""
         ...
+
+
+def checked_vector(value, n: int, what: str) -> np.ndarray:
+    """value as a float array of shape (n,); ValueError naming ``what`` if the shape is wrong or a value is not finite."""
+    arr = np.asarray(value, dtype=float).ravel()
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what} must be {n} finite numbers, got {np.asarray(value).tolist()!r}")
+    return arr

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.plants.base import checked_vector
 from sim.plants.integrators import rk4_step, substeps
 from vflpcd.core.angles import wrap_angle
 from vflpcd.paths import config_dir
@@ -214,9 +215,7 @@ class DynamicBicycle:
 
     def step(self, u_cmd, dt: float) -> np.ndarray:
         """Apply u_cmd = [a_x, delta_f] (2,) for dt seconds; returns the new state (6,)."""
-        u_cmd = np.asarray(u_cmd, dtype=float).ravel()
-        if u_cmd.shape != (2,) or not np.all(np.isfinite(u_cmd)):
-            raise ValueError(f"bicycle command must be 2 finite numbers [a_x, delta_f], got {u_cmd!r}")
+        u_cmd = checked_vector(u_cmd, 2, "bicycle command [a_x, delta_f]")
         self._u = self.saturate(u_cmd, dt)
         cfg = self.config
         n, h = substeps(dt, cfg.max_step)

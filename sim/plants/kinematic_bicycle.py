@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim.plants.base import checked_vector
 from sim.plants.integrators import rk4_step, substeps
 from vflpcd.core.angles import wrap_angle
 
@@ -47,10 +48,7 @@ class KinematicBicycle:
 
     def reset(self, x0) -> None:
         """x0: (3,) [X, Y, psi]."""
-        x0 = np.asarray(x0, dtype=float).ravel()
-        if x0.shape != (3,) or not np.all(np.isfinite(x0)):
-            raise ValueError(f"kinematic bicycle state must be 3 finite numbers, got {x0!r}")
-        self._x = x0.copy()
+        self._x = checked_vector(x0, 3, "kinematic bicycle state [X, Y, psi]")
         self._u = np.zeros(2)
 
     def position(self) -> np.ndarray:
@@ -64,9 +62,7 @@ class KinematicBicycle:
 
     def step(self, u_cmd, dt: float) -> np.ndarray:
         """Apply [v, delta_f] (2,), clipped to the limits, for dt seconds. Returns (3,)."""
-        u_cmd = np.asarray(u_cmd, dtype=float).ravel()
-        if u_cmd.shape != (2,) or not np.all(np.isfinite(u_cmd)):
-            raise ValueError(f"kinematic bicycle command must be 2 finite numbers [v, delta_f], got {u_cmd!r}")
+        u_cmd = checked_vector(u_cmd, 2, "kinematic bicycle command [v, delta_f]")
         self._u = np.array([np.clip(u_cmd[0], -self.v_max, self.v_max),
                             np.clip(u_cmd[1], -self.delta_max, self.delta_max)])
         n, h = substeps(dt, self.max_step)

@@ -84,6 +84,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.plants.base import checked_vector
 from sim.plants.integrators import rk4_step, substeps
 from vflpcd.core.angles import wrap_angle
 from vflpcd.errors import ConfigError
@@ -283,11 +284,7 @@ class Quadrotor:
 
         ValueError on a command of another shape or with non-finite values, or a bad dt.
         """
-        u = np.asarray(u, dtype=float)
-        if u.shape != (3,):
-            raise ValueError(f"quadrotor command must have shape (3,), got {u.shape}")
-        if not np.all(np.isfinite(u)):
-            raise ValueError(f"quadrotor command must be finite, got {u.tolist()}")
+        u = checked_vector(u, 3, "quadrotor command [ax, ay, az]")
         n, h = substeps(dt, self.params.max_step)
         a_cmd = np.clip(u, -self.params.accel_max, self.params.accel_max)
         x = self._x
