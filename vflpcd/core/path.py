@@ -194,7 +194,7 @@ class ReferencePath:
         k = int(np.argmin(d2))
         i = idx[k]
         s = float(self.s[i] + w[k] * np.sqrt(self._seg_len2[i]))
-        tangent = v[k] / np.linalg.norm(v[k])
+        tangent = self.tangent_at(s)  # vertex tangents interpolated: smooth along the path
         point = foot[k]
         heading = float(np.arctan2(tangent[1], tangent[0]))
         if self.dim == 2:
