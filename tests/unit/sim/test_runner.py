@@ -54,9 +54,10 @@ def test_pure_pursuit_on_a_corridor_hits_the_block_and_reports_it(tmp_path):
     assert m["t_com"] == pytest.approx(29.0 / 3.0, abs=0.06)        # constant 3 m/s to the finish line
     assert m["L_p"] == pytest.approx(29.0, abs=0.2)
     assert m["collisions"] == 1                                       # drives straight through the block
-    # body half-width + block half-size overlap: the cover discs are 1.253 m; block half 0.5
-    assert m["min_clearance_per_obstacle"][0] == pytest.approx(-0.5 - 1.2528, abs=0.01)
-    assert m["min_clearance_per_obstacle"][1] == pytest.approx(4.0 - 0.5 - 1.2528, abs=0.01)
+    # the car runs over the centred 1 m block: the shortest push out is sideways, 0.95 + 0.5
+    assert m["min_clearance_per_obstacle"][0] == pytest.approx(-1.45, abs=0.01)
+    # passing 4 m beside a 0.5 m post with a 1.9 m wide body: 4 - 0.5 - 0.95
+    assert m["min_clearance_per_obstacle"][1] == pytest.approx(4.0 - 0.5 - 0.95, abs=0.01)
     assert m["rms_lateral_error"] < 1e-9 and m["J_MC"] < 1e-6
     assert rec.t_cal.shape == rec.t.shape and np.all(rec.t_cal > 0)
 
@@ -98,3 +99,17 @@ def test_racing_track_lap_with_process_noise_is_seeded():
     c = run_closed_loop(s, make_controller("pure_pursuit", s), seed=4)
     assert np.array_equal(a.state, b.state)
     assert not np.array_equal(a.state, c.state)
+
+
+def test_footprint_clearance_is_exact_for_a_rectangle():
+    from sim.footprint import Footprint
+    from vflpcd.core.shapes import Box, Circle
+
+    fp = Footprint.rectangle(4.0, 2.0, 1.0)  # body x in [-1, 3], y in [-1, 1]
+    assert fp.clearance(Circle(0.5), np.array([5.0, 0.0]), 0.0, np.zeros(2), 0.0) == pytest.approx(1.5, abs=1e-3)
+    assert fp.clearance(Circle(0.5), np.array([4.0, 2.0]), 0.0, np.zeros(2), 0.0) == pytest.approx(
+        np.hypot(1.0, 1.0) - 0.5, abs=2e-3)                                   # nearest the corner (3, 1)
+    assert fp.clearance(Circle(0.5), np.array([0.0, 3.0]), 0.0, np.zeros(2), np.pi / 2) == pytest.approx(-0.5, abs=1e-3)
+    assert fp.clearance(Box(0.2, 0.2), np.array([1.0, 0.5]), 0.0, np.zeros(2), 0.0) == pytest.approx(-0.6)  # inside
+    assert np.all(np.linalg.norm(fp.outline[:, None, :] - fp.offsets[None, :, None] * [1, 0], axis=2).min(axis=1)
+                  <= fp.radius + 1e-12)                                          # the discs cover the body
