@@ -1,0 +1,284 @@
+"""Implicit functions of the composite guiding vector field (paper section II-A).
+
+A desired path is P = {xi : phi(xi) = 0}; an obstacle i has a reactive boundary
+R_i = {varphi_i = 0} and a repulsive boundary Q_i = {varphi_i = c_i}, c_i < 0, with
+varphi_i increasing outwards. Every class here returns values and gradients, vectorised
+over points (N, d); obstacles also take the time t (they translate with their velocity).
+
+Paths (2-D):
+- ``LinePath``: phi = n . (xi - a), n the left normal of the direction (signed distance);
+- ``CirclePath``: phi = |xi - c| - R (signed distance; singular at the centre);
+- ``GraphPath``: the paper's fit of recorded path points in a local frame,
+  phi = y' - f(x') with f a C2 cubic spline (extended linearly beyond its ends), so that
+  grad phi = R(theta) [-f'(x'), 1] never vanishes (no singular points).
+
+Obstacles (2-D and 3-D): superquadrics
+    varphi(xi, t) = N(z) - 1,  z = R(yaw)^T (xi - c(t)) / axes,  c(t) = c_0 + v (t - t_0),
+    N(z) = (|z_1|^p + |z_2|^p)^(1/p)                                    in 2-D,
+    N(z) = (((|z_1|^p + |z_2|^p)^(q/p)) + |z_3|^q)^(1/q)                  in 3-D,
+with p = 2 for circles, ellipses, spheres, ellipsoids and cylinders (in xy), p = 4 (a
+rounded box) for boxes, q = 2 for spheres and ellipsoids and q = 4 for cylinders and boxes.
+``ObstacleImplicit.around`` sizes the axes so that the reactive boundary encloses every point
+within ``reactive_distance`` of the physical shape and picks c so that the repulsive boundary
+encloses every point within ``repulsive_distance`` (both checked by ray casting against the
+shape's exact signed distance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from vflpcd.core.path import ReferencePath
+
+E = np.array([[0.0, -1.0], [1.0, 0.0]])  # rotation by +90 deg
+
+
+class GuidanceError(ValueError):
+    """A guidance problem that cannot be solved as posed (names the obstacle or parameter)."""
+
+
+def _rot(yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s], [s, c]])
+
+
+# ---------------------------------------------------------------------------- paths
+@dataclass(frozen=True)
+class LinePath:
+    """Straight line through a (2,) with unit direction d (2,); forward travel needs gamma_0 = -1."""
+
+    a: np.ndarray
+    d: np.ndarray
+
+    def value_grad(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """p: (N, 2) -> phi (N,), grad phi (N, 2)."""
+        n = np.array([-self.d[1], self.d[0]])
+        return (p - self.a) @ n, np.broadcast_to(n, p.shape).copy()
+
+    def progress(self, p: np.ndarray) -> np.ndarray:
+        """Arc length of the foot point along the direction, (N,)."""
+        return (p - self.a) @ self.d
+
+    def progress_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """(origin, unit direction): progress = (xi - origin) . direction."""
+        return self.a, self.d
+
+
+@dataclass(frozen=True)
+class CirclePath:
+    """Circle of radius R about c (2,); counter-clockwise travel needs gamma_0 = +1."""
+
+    c: np.ndarray
+    R: float
+
+    def value_grad(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r = p - self.c
+        dist = np.linalg.norm(r, axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            g = np.where(dist[:, None] > 0.0, r / dist[:, None], 0.0)
+        return dist - self.R, g
+
+
+class GraphPath:
+    """The path as a graph y' = f(x') in a local frame (origin o, heading theta).
+
+    Forward travel (increasing x') needs gamma_0 = -1: gamma_0 E grad phi = [1, f'] / ... in
+    the local frame. ``progress`` is x', which increases along the path.
+    """
+
+    def __init__(self, origin: np.ndarray, theta: float, xs: np.ndarray, ys: np.ndarray) -> None:
+        if np.any(np.diff(xs) <= 0.0):
+            raise GuidanceError("path portion is not a graph in its local frame (x' must increase)")
+        self.origin, self.theta = np.asarray(origin, float), float(theta)
+        self.R = _rot(self.theta)
+        self.f = CubicSpline(xs, ys, bc_type="natural")
+        self.df = self.f.derivative()
+        self.x0, self.x1 = float(xs[0]), float(xs[-1])
+
+    @classmethod
+    def from_reference(cls, path: ReferencePath, s0: float, s1: float, spacing: float = 1.0) -> "GraphPath":
+        """Fit the stretch [s0, s1] of a 2-D reference path in the frame of its chord."""
+        n = max(int(np.ceil((s1 - s0) / spacing)), 3)
+        pts = path.point_at(np.linspace(s0, s1, n + 1))
+        chord = pts[-1] - pts[0]
+        theta = float(np.arctan2(chord[1], chord[0]))
+        local = (pts - pts[0]) @ _rot(theta)
+        return cls(pts[0], theta, local[:, 0], local[:, 1])
+
+    def to_local(self, p: np.ndarray) -> np.ndarray:
+        return (p - self.origin) @ self.R
+
+    def _f(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        xc = np.clip(x, self.x0, self.x1)
+        f, df = self.f(xc), self.df(xc)
+        return f + df * (x - xc), df  # linear beyond the ends
+
+    def value_grad(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = self.to_local(p)
+        f, df = self._f(q[:, 0])
+        g_local = np.column_stack([-df, np.ones_like(df)])
+        return q[:, 1] - f, g_local @ self.R.T
+
+    def progress(self, p: np.ndarray) -> np.ndarray:
+        return self.to_local(p)[:, 0]
+
+    def progress_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """(origin, unit direction): progress x' = (xi - origin) . direction."""
+        return self.origin, self.R[:, 0]
+
+    def point(self, x: np.ndarray) -> np.ndarray:
+        """World points of the graph at local abscissae x (K,) -> (K, 2)."""
+        f, _ = self._f(np.asarray(x, float))
+        return self.origin + np.column_stack([x, f]) @ self.R.T
+
+
+def graph_horizon(path: ReferencePath, s0: float, length: float, max_turn: float = np.radians(70.0)) -> float:
+    """The longest stretch from s0 (at most ``length``) whose tangents stay within max_turn of
+    its chord, so that it is a graph in the chord frame. Returns its end arc length."""
+    s_end = s0 + length if path.closed else min(s0 + length, path.length)
+    for _ in range(40):
+        s = np.linspace(s0, s_end, 64)
+        chord = path.point_at(s_end) - path.point_at(s0)
+        ang = np.arctan2(chord[1], chord[0])
+        dev = np.abs(np.angle(np.exp(1j * (path.heading_at(s) - ang))))
+        if np.max(dev) <= max_turn:
+            return float(s_end)
+        s_end = s0 + 0.8 * (s_end - s0)
+    raise GuidanceError(f"no stretch of the path from s = {s0:.1f} m is a graph; the path turns too sharply")
+
+
+# ---------------------------------------------------------------------------- obstacles
+_EXPONENTS = {  # kind -> (p, q, half-extents of the physical shape)
+    "circle": (2.0, None, lambda s: np.array([s.radius, s.radius])),
+    "ellipse": (2.0, None, lambda s: np.array([s.a, s.b])),
+    "box": (4.0, None, lambda s: np.array([s.length, s.width]) / 2),
+    "sphere": (2.0, 2.0, lambda s: np.array([s.radius] * 3)),
+    "ellipsoid": (2.0, 2.0, lambda s: np.array([s.a, s.b, s.c])),
+    "cylinder": (2.0, 4.0, lambda s: np.array([s.radius, s.radius, s.height / 2])),
+    "box3": (4.0, 4.0, lambda s: np.array([s.length, s.width, s.height]) / 2),
+}
+
+
+def _sphere_directions(dim: int, n: int) -> np.ndarray:
+    if dim == 2:
+        a = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+        return np.column_stack([np.cos(a), np.sin(a)])
+    k = np.arange(n) + 0.5  # Fibonacci sphere
+    z = 1 - 2 * k / n
+    r = np.sqrt(1 - z * z)
+    phi = np.pi * (1 + 5 ** 0.5) * k
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def _inflated_boundary(shape, distance: float, n: int) -> np.ndarray:
+    """Points (n, d), in the body frame, on {sd = distance} of a convex shape, by bisection along rays."""
+    dirs = _sphere_directions(shape.dim, n)
+    zero = np.zeros(shape.dim)
+    lo = np.zeros(len(dirs))
+    hi = np.full(len(dirs), shape.bounding_radius() + distance + 1.0)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        inside = shape.signed_distance(dirs * mid[:, None], zero, 0.0) <= distance
+        lo, hi = np.where(inside, mid, lo), np.where(inside, hi, mid)
+    return dirs * hi[:, None]
+
+
+class ObstacleImplicit:
+    """varphi_i(xi, t) of one obstacle (see the module docstring), with its repulsive level c."""
+
+    def __init__(self, name: str, center: np.ndarray, yaw: float, velocity: np.ndarray, stamp: float,
+                 axes: np.ndarray, p: float, q: float | None, c: float) -> None:
+        self.name, self.center, self.yaw = name, np.asarray(center, float), float(yaw)
+        self.velocity, self.stamp = np.asarray(velocity, float), float(stamp)
+        self.axes, self.p, self.q, self.c = np.asarray(axes, float), p, q, float(c)
+        self.dim = len(self.center)
+        cy, sy = np.cos(self.yaw), np.sin(self.yaw)
+        self.Rz = np.eye(self.dim)
+        self.Rz[:2, :2] = [[cy, -sy], [sy, cy]]
+        if not (np.all(np.isfinite(self.axes)) and np.all(self.axes > 0)):
+            raise GuidanceError(f"obstacle {name!r}: axes must be positive and finite, got {self.axes}")
+        if not (np.isfinite(self.c) and self.c < 0.0):
+            raise GuidanceError(f"obstacle {name!r}: c must be negative and finite (c_i < 0), got {self.c}")
+
+    @classmethod
+    def around(cls, name: str, shape, center, yaw: float, velocity, stamp: float,
+               reactive_distance: float, repulsive_distance: float, rays: int | None = None) -> "ObstacleImplicit":
+        """Implicit function whose R encloses the shape grown by reactive_distance and whose Q
+        encloses it grown by repulsive_distance (0 < repulsive_distance < reactive_distance)."""
+        for label, value in (("reactive_distance", reactive_distance), ("repulsive_distance", repulsive_distance)):
+            if not np.isfinite(value) or value < 0:
+                raise GuidanceError(f"obstacle {name!r}: {label} must be finite and >= 0, got {value}")
+        if repulsive_distance >= reactive_distance:
+            raise GuidanceError(f"obstacle {name!r}: repulsive_distance ({repulsive_distance}) must be smaller "
+                                f"than reactive_distance ({reactive_distance})")
+        p, q, halfs = _EXPONENTS[shape.kind]
+        rays = rays or (720 if shape.dim == 2 else 4000)
+        base = halfs(shape) + reactive_distance
+        unit = cls(name, np.zeros(shape.dim), 0.0, np.zeros(shape.dim), 0.0, base, p, q, -0.5)
+        scale = 1.005 * np.max(unit.norm(_inflated_boundary(shape, reactive_distance, rays)))
+        axes = base * scale
+        inner = cls(name, np.zeros(shape.dim), 0.0, np.zeros(shape.dim), 0.0, axes, p, q, -0.5)
+        c = 1.005 * np.max(inner.norm(_inflated_boundary(shape, repulsive_distance, rays))) - 1.0
+        if c >= 0.0:
+            raise GuidanceError(f"obstacle {name!r}: the reactive boundary does not leave room for the repulsive "
+                                "one; increase reactive_distance")
+        return cls(name, center, yaw, velocity, stamp, axes, p, q, c)
+
+    def center_at(self, t: float) -> np.ndarray:
+        return self.center + self.velocity * (t - self.stamp)
+
+    def _scaled(self, pts: np.ndarray, t: float) -> np.ndarray:
+        return ((pts - self.center_at(t)) @ self.Rz) / self.axes
+
+    def norm(self, pts_body: np.ndarray) -> np.ndarray:
+        """N(z) for body-frame points (N, d) (centre at the origin, no rotation)."""
+        return self._norm_grad(pts_body / self.axes)[0]
+
+    def _norm_grad(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a = np.abs(z)
+        p = self.p
+        S = a[:, 0] ** p + a[:, 1] ** p
+        tiny = 1e-300
+        if self.dim == 2:
+            N = S ** (1.0 / p)
+            coef = np.maximum(S, tiny) ** (1.0 / p - 1.0)
+            g = coef[:, None] * np.sign(z) * a ** (p - 1.0)
+            return N, g
+        q = self.q
+        T = S ** (q / p) + a[:, 2] ** q
+        N = T ** (1.0 / q)
+        tq = np.maximum(T, tiny) ** (1.0 / q - 1.0)
+        sq = np.maximum(S, tiny) ** (q / p - 1.0)
+        g = np.empty_like(z)
+        g[:, :2] = (tq * sq)[:, None] * np.sign(z[:, :2]) * a[:, :2] ** (p - 1.0)
+        g[:, 2] = tq * np.sign(z[:, 2]) * a[:, 2] ** (q - 1.0)
+        return N, g
+
+    def value_grad(self, pts: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """pts (N, d) -> varphi (N,), grad varphi (N, d) at time t (zero gradient at the centre)."""
+        N, gz = self._norm_grad(self._scaled(pts, t))
+        return N - 1.0, (gz / self.axes) @ self.Rz.T
+
+    def value(self, pts: np.ndarray, t: float = 0.0) -> np.ndarray:
+        return self._norm_grad(self._scaled(pts, t))[0] - 1.0
+
+    @property
+    def reach(self) -> float:
+        """Radius about the centre outside which every point is outside the reactive boundary
+        (N >= max |z_j|, and N = |z| for p = q = 2)."""
+        if self.p == 2.0 and self.q in (None, 2.0):
+            return float(np.max(self.axes))
+        return float(np.linalg.norm(self.axes))
+
+    def value_at(self, x: float, y: float, t: float = 0.0) -> float:
+        """varphi at one planar point, in plain floats (the integration's hot path)."""
+        cx = self.center[0] + self.velocity[0] * (t - self.stamp)
+        cy = self.center[1] + self.velocity[1] * (t - self.stamp)
+        c, s = self.Rz[0, 0], self.Rz[1, 0]
+        zx = ((x - cx) * c + (y - cy) * s) / self.axes[0]
+        zy = (-(x - cx) * s + (y - cy) * c) / self.axes[1]
+        p = self.p
+        return (abs(zx) ** p + abs(zy) ** p) ** (1.0 / p) - 1.0

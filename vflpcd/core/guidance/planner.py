@@ -1,0 +1,227 @@
+"""Guidance: from a reference path and obstacles to a safe, timed reference trajectory.
+
+1. A stretch of the reference path (at most ``horizon`` metres, short enough to be a graph in
+   its chord frame) becomes the path implicit phi (``GraphPath``).
+2. Every actual obstacle becomes an implicit varphi_i whose repulsive boundary encloses the
+   shape grown by the robot's body radius + ``safety_margin`` and whose reactive boundary lies
+   ``reactive_margin`` further out. Its side and direction gamma_i follow the rule: pass on the
+   side that leaves the path least, i.e. the side where the repulsive region reaches less far
+   across the path (measured along the path normal at the obstacle); gamma_i is then the sign
+   that makes gamma_i E grad varphi_i point along the path on that side.
+3. Virtual obstacles (``virtual = "auto"``): for each static obstacle whose reactive region
+   the stretch enters, a circle whose repulsive boundary Q_vrtl has the turning radius
+   v_d^2 / a_max, touches the path ``r_q * lead`` metres before the entry into R_actl on the
+   passing side, and is pushed outwards until in-Q_vrtl ∩ P ⊂ in-R_actl ∩ P (remark 1).
+4. The static part of chi_c is evaluated on a grid; eq. (xi_r) is integrated from the robot.
+5. The integrated points are smoothed (Gaussian, ``smoothing`` m) and speed-planned.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+
+from vflpcd.core.guidance.field import ActualTerm, GuidanceField, VirtualTerm
+from vflpcd.core.guidance.grid import FieldGrid, Integration, integrate
+from vflpcd.core.guidance.implicit import E, GraphPath, GuidanceError, ObstacleImplicit, graph_horizon
+from vflpcd.core.guidance.params import GuidanceParams
+from vflpcd.core.guidance.speed import arrival_times, plan_speed, signed_curvature
+from vflpcd.core.guidance.trajectory import Trajectory
+from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.path import ReferencePath
+
+VIRTUAL_LEAD = np.radians(30.0)  # heading change the virtual obstacle gives before R_actl
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """The field of one path stretch with its static obstacles, and its grid."""
+
+    field: GuidanceField
+    grid: FieldGrid
+    s0: float
+    s_end: float
+    x_end: float
+    ends_path: bool
+
+
+@dataclass(frozen=True)
+class GuidancePlan:
+    """trajectory: the timed reference; xy (K, 2), s, kappa, v (K,): the smoothed spatial path
+    and its speed plan; raw (K, 2): the points of eq. (xi_r); reached: the stretch's end was
+    reached; inherited: steps that reused the previous direction."""
+
+    trajectory: Trajectory
+    xy: np.ndarray
+    s: np.ndarray
+    kappa: np.ndarray
+    v: np.ndarray
+    raw: np.ndarray
+    reached: bool
+    inherited: int
+    field: GuidanceField
+
+
+class GuidancePlanner:
+    """Plans the reference for one robot on one reference path (2-D)."""
+
+    def __init__(self, path: ReferencePath, params: GuidanceParams, v_desired: float, a_lat_max: float,
+                 body_radius: float, control_period: float) -> None:
+        if path.dim != 2:
+            raise GuidanceError("the planar guidance needs a 2-D path")
+        for name, value in (("v_desired", v_desired), ("a_lat_max", a_lat_max), ("body_radius", body_radius),
+                            ("control_period", control_period)):
+            if not (np.isfinite(value) and value > 0):
+                raise GuidanceError(f"{name} must be positive and finite, got {value}")
+        self.path, self.params = path, params
+        self.v_desired, self.a_lat_max = v_desired, a_lat_max
+        self.body_radius, self.dt = body_radius, control_period
+
+    # ------------------------------------------------------------------ obstacles
+    def implicit(self, o: ObstacleState) -> ObstacleImplicit:
+        rep = self.body_radius + self.params.safety_margin
+        return ObstacleImplicit.around(o.id, o.shape, o.center, o.yaw, o.velocity, o.stamp,
+                                       reactive_distance=rep + self.params.reactive_margin, repulsive_distance=rep)
+
+    def actual_term(self, o: ObstacleImplicit, t: float = 0.0) -> ActualTerm:
+        """Side (+1 left, -1 right) and gamma_i by the rule in the module docstring."""
+        center = o.center_at(t)
+        proj = self.path.project(center)
+        tangent = proj.tangent
+        normal = E @ tangent
+        dirs = np.column_stack([np.cos(np.linspace(0, 2 * np.pi, 360, endpoint=False)),
+                                np.sin(np.linspace(0, 2 * np.pi, 360, endpoint=False))])
+        r_q = (1.0 + o.c) / o.norm(dirs)
+        boundary = center + (dirs * r_q[:, None]) @ o.Rz.T
+        lateral = (boundary - proj.point) @ normal
+        side = 1.0 if np.max(lateral) <= np.max(-lateral) else -1.0
+        u = o.Rz.T @ (side * normal)
+        p_pass = center + o.Rz @ (u / o.norm(u[None, :])[0])
+        _, g = o.value_grad(p_pass[None, :], t)
+        along = float(tangent @ (E @ g[0]))
+        gamma = np.sign(along) if along != 0.0 else -side
+        return ActualTerm(implicit=o, gamma=float(gamma), side=side)
+
+    def virtual_for(self, term: ActualTerm, s0: float, s_end: float) -> VirtualTerm | None:
+        """The automatic virtual obstacle of an actual one (None if the stretch does not enter R_actl
+        or there is no room before it)."""
+        o = term.implicit
+        s = np.arange(s0, s_end, 0.25)
+        pts = self.path.point_at(s)
+        inside = np.nonzero(o.value(pts) < 0.0)[0]
+        if inside.size == 0 or inside[0] == 0:
+            return None
+        r_q = self.v_desired ** 2 / self.a_lat_max
+        r_R = r_q + self.params.virtual_buffer
+        s_t = s[inside[0]] - r_q * VIRTUAL_LEAD
+        if s_t <= s0:
+            return None
+        p_t, t_t = self.path.point_at(s_t), self.path.tangent_at(s_t)
+        n_t = term.side * (E @ t_t)
+        offset = r_q
+        for _ in range(40):  # remark 1: the path enters Q_vrtl only inside R_actl
+            center = p_t + n_t * offset
+            v = ObstacleImplicit(f"virtual:{o.name}", center, 0.0, np.zeros(2), 0.0, np.array([r_R, r_R]),
+                                 2.0, None, r_q / r_R - 1.0)
+            in_q = v.value(pts) < v.c
+            if not np.any(in_q & (o.value(pts) >= 0.0)):
+                break
+            offset *= 1.05
+        else:
+            return None
+        _, g = v.value_grad((center - n_t * offset * (1.0 + v.c) / (r_q / r_R))[None, :] if False else
+                            (p_t + n_t * (offset - r_q))[None, :])
+        along = float(t_t @ (E @ g[0]))
+        return VirtualTerm(implicit=v, gamma=float(np.sign(along) or term.side), parent=o)
+
+    def manual_virtual(self, spec, terms: dict[str, ActualTerm]) -> VirtualTerm:
+        if spec.parent not in terms:
+            raise GuidanceError(f"virtual obstacle at {spec.center.tolist()}: parent {spec.parent!r} is not an "
+                                f"obstacle near this stretch (have: {', '.join(sorted(terms)) or 'none'})")
+        parent = terms[spec.parent]
+        v = ObstacleImplicit(f"virtual:{spec.parent}", spec.center, 0.0, np.zeros(2), 0.0,
+                             np.array([spec.radius, spec.radius]), 2.0, None, spec.c)
+        if spec.gamma:
+            return VirtualTerm(implicit=v, gamma=float(spec.gamma), parent=parent.implicit)
+        proj = self.path.project(spec.center)
+        _, g = v.value_grad(proj.point[None, :])
+        return VirtualTerm(implicit=v, gamma=float(np.sign(proj.tangent @ (E @ g[0])) or 1.0), parent=parent.implicit)
+
+    # ------------------------------------------------------------------ planning
+    def prepare(self, s0: float, statics: Sequence[ObstacleState]) -> Prepared:
+        """Field and grid of the stretch starting at arc length s0 with the static obstacles."""
+        p = self.params
+        s0 = float(self.path.wrap_s(s0)) if self.path.closed else float(np.clip(s0, 0.0, self.path.length))
+        s_end = graph_horizon(self.path, s0, p.horizon)
+        ends_path = (not self.path.closed) and s_end >= self.path.length - 1e-9
+        back = min(5.0, s0) if not self.path.closed else 5.0
+        graph = GraphPath.from_reference(self.path, s0 - back, s_end)
+        pts = self.path.point_at(np.linspace(s0, s_end, 200))
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        terms: dict[str, ActualTerm] = {}
+        for o in statics:
+            imp = self.implicit(o)
+            if np.all(np.abs(np.clip(imp.center, lo, hi) - imp.center) <= imp.reach + 1.0):
+                terms[o.id] = self.actual_term(imp)
+        for t in terms.values():  # lo/hi cover every relevant reactive region
+            lo = np.minimum(lo, t.implicit.center - t.implicit.reach)
+            hi = np.maximum(hi, t.implicit.center + t.implicit.reach)
+        pad = 2.0
+        field = GuidanceField(path=graph, gamma0=-1.0, k_p=p.k_p, k_r=p.k_r, l1=p.l1, l2=p.l2, k_c=p.k_c,
+                              statics=list(terms.values()))
+        if p.virtual_obstacles:
+            field.virtuals = [self.manual_virtual(spec, terms) for spec in p.virtual_obstacles]
+        elif p.virtual == "auto":
+            field.virtuals = [v for t in terms.values() if (v := self.virtual_for(t, s0, s_end)) is not None]
+        if ends_path:
+            goal = self.path.point_at(self.path.length)[None, :]
+            for t in terms.values():
+                if t.implicit.value(goal)[0] <= t.implicit.c:
+                    raise GuidanceError(f"obstacle {t.implicit.name!r} covers the goal at {goal[0].round(2).tolist()} "
+                                        "(it is inside its repulsive boundary)")
+        grid = FieldGrid.build(field, (lo[0] - pad, hi[0] + pad, lo[1] - pad, hi[1] + pad), p.grid_resolution)
+        x_end = float(graph.progress(self.path.point_at(s_end)[None, :])[0]) - (p.beta if ends_path else 0.0)
+        return Prepared(field=field, grid=grid, s0=s0, s_end=s_end, x_end=x_end, ends_path=ends_path)
+
+    def plan(self, prepared: Prepared, start: np.ndarray, t0: float, v0: float,
+             movers: Sequence[ObstacleState] = (), heading: float | None = None) -> GuidancePlan:
+        """Integrate from start (2,) at time t0 and speed v0, with moving obstacles, and time the result."""
+        p = self.params
+        start = np.asarray(start, float)
+        if start.shape != (2,) or not np.all(np.isfinite(start)):
+            raise GuidanceError(f"start must be 2 finite numbers, got {start!r}")
+        field = prepared.field
+        if movers:
+            field = replace(field, movers=[self.actual_term(self.implicit(o), t0) for o in movers])
+        for t in field.statics + field.movers:
+            if t.implicit.value(start[None, :], t0)[0] <= t.implicit.c:
+                raise GuidanceError(f"obstacle {t.implicit.name!r} covers the start at {start.round(2).tolist()} "
+                                    "(it is inside its repulsive boundary)")
+        length = prepared.s_end - prepared.s0
+        h = None if heading is None else np.array([np.cos(heading), np.sin(heading)])
+        res: Integration = integrate(field, prepared.grid, start, prepared.x_end, p.beta, p.epsilon,
+                                     max_steps=int(4 * (length + 20.0) / p.beta), t0=t0,
+                                     speed=max(v0, 0.5 * self.v_desired), heading=h)
+        xy = gaussian_filter1d(res.xy, sigma=max(p.smoothing / p.beta, 1e-6), axis=0, mode="nearest")
+        s, kappa, v = plan_speed(xy, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
+                                 v_end=0.0 if (prepared.ends_path and res.reached) else None)
+        trajectory = self._timed(xy, s, v, t0)
+        return GuidancePlan(trajectory=trajectory, xy=xy, s=s, kappa=kappa, v=v, raw=res.xy,
+                            reached=res.reached, inherited=res.inherited, field=field)
+
+    def _timed(self, xy: np.ndarray, s: np.ndarray, v: np.ndarray, t0: float) -> Trajectory:
+        t_s = arrival_times(s, v)
+        finite = np.isfinite(t_s)
+        xy, s, v, t_s = xy[finite], s[finite], v[finite], t_s[finite]
+        t = np.arange(0.0, t_s[-1] + 1e-9, self.dt)
+        heading = np.unwrap(np.arctan2(*np.gradient(xy, axis=0)[:, ::-1].T))
+        k_signed = signed_curvature(xy)
+        vt = np.interp(t, t_s, v)
+        kt = np.interp(t, t_s, k_signed)
+        return Trajectory(t=t + t0, pos=np.column_stack([np.interp(t, t_s, xy[:, 0]), np.interp(t, t_s, xy[:, 1])]),
+                          psi=np.interp(t, t_s, heading), v=vt, omega=vt * kt,
+                          accel=np.gradient(vt, t) if len(t) > 1 else np.zeros_like(t), kappa=kt,
+                          s=np.interp(t, t_s, s))

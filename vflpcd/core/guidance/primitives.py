@@ -1,0 +1,57 @@
+"""The composite guiding vector fields of the paper, vectorised over points (N, 2).
+
+Path-following and repulsive fields (section II-A):
+    chi_P   = gamma_0 E grad phi   - k_p    phi   grad phi
+    chi_R_i = gamma_i E grad varphi_i - k_r_i varphi_i grad varphi_i
+Smooth bump functions (section II-A), per obstacle with repulsive level c < 0:
+    f1 = exp(l1 / (c - varphi)) if varphi > c else 0,   f2 = exp(l2 / varphi) if varphi < 0 else 0,
+    cup_Q = f1 / (f1 + f2),  cap_R = f2 / (f1 + f2)
+computed as a logistic function of log f1 - log f2 so that nothing overflows.
+Composite field, eq. (eq_yaocvf):
+    chi = (prod_i cup_Q_i) chi_P^ + sum_i cap_R_i chi_R_i^
+Kinodynamic composite field, eq. (guiding_vector_dynamic_constraint), with virtual obstacles I':
+    chi_c = (prod_{I \\ I'} cup_Q_i  prod_{I'} s_i) chi_P^ + sum_{I \\ I'} cap_R_i chi_R_i^ + sum_{I'} (1 - s_i) chi_R_i^
+with s_i of eq. (S_xi): exp(k_c / (c_i - varphi_i)) in the buffer region
+M_b = ex R_actl ∩ in R_vrtl, 1 elsewhere (and 0 on Q_vrtl and inside it, its limit).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+E = np.array([[0.0, -1.0], [1.0, 0.0]])  # rotation by +90 deg
+
+
+def bump(varphi: np.ndarray, c: float, l1: float, l2: float) -> tuple[np.ndarray, np.ndarray]:
+    """(cup_Q, cap_R) for values varphi (N,): 1/0 outside R, 0/1 inside Q, smooth in between."""
+    varphi = np.asarray(varphi, float)
+    cup = np.where(varphi >= 0.0, 1.0, 0.0)
+    mid = (varphi > c) & (varphi < 0.0)
+    if np.any(mid):
+        v = varphi[mid]
+        z = l1 / (c - v) - l2 / v  # log f1 - log f2
+        cup[mid] = 0.5 * (1.0 + np.tanh(0.5 * z))  # logistic(z), stable for any z
+    return cup, 1.0 - cup
+
+
+def guiding(gamma: float, k: float, phi: np.ndarray, grad: np.ndarray) -> np.ndarray:
+    """gamma E grad phi - k phi grad phi for phi (N,), grad (N, 2): the chi_P / chi_R_i form."""
+    return gamma * (grad @ E.T) - k * phi[:, None] * grad
+
+
+def unit(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(v / |v|, |v|) row-wise for v (N, d); rows of zero norm stay zero."""
+    n = np.linalg.norm(v, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.where(n[:, None] > 0.0, v / n[:, None], 0.0)
+    return u, n
+
+
+def s_virtual(varphi_v: np.ndarray, c_v: float, k_c: float, in_buffer: np.ndarray) -> np.ndarray:
+    """s_i of eq. (S_xi) for a virtual obstacle: values varphi_v (N,), buffer-region mask (N,)."""
+    varphi_v = np.asarray(varphi_v, float)
+    s = np.ones_like(varphi_v)
+    above = in_buffer & (varphi_v > c_v)
+    s[above] = np.exp(k_c / (c_v - varphi_v[above]))
+    s[in_buffer & (varphi_v <= c_v)] = 0.0
+    return s

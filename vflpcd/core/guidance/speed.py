@@ -1,0 +1,68 @@
+"""Speed planning along a planned path (paper section III-A, after eq. S_xi).
+
+The centripetal limit v^2 kappa <= a_max gives v_max(s) = min(v_d, sqrt(a_max / kappa(s)));
+a forward pass (v_{k+1}^2 <= v_k^2 + 2 a_acc ds) and a backward pass
+(v_k^2 <= v_{k+1}^2 + 2 a_dec ds) make the profile reachable under the longitudinal limits,
+and only ever lower speeds, so the centripetal limit still holds. Times follow from
+dt = 2 ds / (v_k + v_{k+1}).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def menger_curvature(xy: np.ndarray) -> np.ndarray:
+    """Unsigned curvature of a polyline (K, 2) from the circle through each point and its
+    neighbours (end points copy their neighbour). Returns (K,)."""
+    a, b, c = xy[:-2], xy[1:-1], xy[2:]
+    ab, bc, ca = (np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1), np.linalg.norm(a - c, axis=1))
+    cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k = np.where(ab * bc * ca > 0.0, 2.0 * np.abs(cross) / (ab * bc * ca), 0.0)
+    if len(k) == 0:
+        return np.zeros(len(xy))
+    return np.concatenate([k[:1], k, k[-1:]])
+
+
+def signed_curvature(xy: np.ndarray) -> np.ndarray:
+    """Menger curvature with the sign of the turn (left positive), (K,)."""
+    k = menger_curvature(xy)
+    if len(xy) < 3:
+        return k
+    d1, d2 = xy[1:-1] - xy[:-2], xy[2:] - xy[1:-1]
+    sgn = np.sign(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    return k * np.concatenate([sgn[:1], sgn, sgn[-1:]])
+
+
+def plan_speed(xy: np.ndarray, v_desired: float, a_lat_max: float, a_accel: float, a_decel: float,
+               v_start: float, v_end: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Speed profile for the path xy (K, 2): returns (s (K,), kappa (K,), v (K,)).
+
+    kappa is the largest Menger curvature of each point and its two neighbours (a
+    conservative estimate); v_start is the robot's speed (the profile starts no faster),
+    v_end the speed required at the last point (None: free).
+    """
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    k = menger_curvature(xy)
+    kappa = np.maximum(k, np.maximum(np.roll(k, 1), np.roll(k, -1)))
+    kappa[0], kappa[-1] = max(k[0], k[min(1, len(k) - 1)]), max(k[-1], k[max(len(k) - 2, 0)])
+    with np.errstate(divide="ignore"):
+        v = np.minimum(v_desired, np.sqrt(a_lat_max / np.maximum(kappa, 1e-12)))
+    ds = np.diff(s)
+    v[0] = min(v[0], max(v_start, 0.0))
+    for i in range(len(v) - 1):  # forward: acceleration limit
+        v[i + 1] = min(v[i + 1], np.sqrt(v[i] ** 2 + 2.0 * a_accel * ds[i]))
+    if v_end is not None:
+        v[-1] = min(v[-1], v_end)
+    for i in range(len(v) - 2, -1, -1):  # backward: deceleration limit
+        v[i] = min(v[i], np.sqrt(v[i + 1] ** 2 + 2.0 * a_decel * ds[i]))
+    return s, kappa, v
+
+
+def arrival_times(s: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Time at each path point (K,) for speeds v (K,) along arc lengths s (K,), starting at 0."""
+    vm = v[:-1] + v[1:]
+    with np.errstate(divide="ignore"):
+        dt = np.where(vm > 0.0, 2.0 * np.diff(s) / vm, np.inf)
+    return np.concatenate([[0.0], np.cumsum(dt)])
