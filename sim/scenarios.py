@@ -16,6 +16,7 @@ import numpy as np
 
 from sim.footprint import Footprint
 from sim.plants.dynamic_bicycle import BicycleConfig
+from vflpcd.core.guidance.params import GuidanceParams
 from vflpcd.core.path import ReferencePath
 from vflpcd.core.shapes import SHAPES_2D, SHAPES_3D, shape_from_table
 from vflpcd.errors import ConfigError
@@ -69,6 +70,7 @@ class Scenario:
     obstacles: tuple[ObstacleSpec, ...]
     weights: MetricWeights
     footprint: Footprint
+    guidance: GuidanceParams    # config/guidance.toml with the scenario's [guidance] overrides
 
     @property
     def goal_progress(self) -> float:
@@ -151,9 +153,15 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         goal_tolerance=goal.number("tolerance", 1.0, positive=True),
         laps=goal.integer("laps", 1, min=1), obstacles=obstacles,
         weights=MetricWeights(q1=metrics.number("q1", min=0.0), q2=metrics.number("q2", min=0.0), R=R),
-        footprint=footprint)
+        footprint=footprint, guidance=GuidanceParams.from_table(root.table("guidance", {}), default_guidance()))
     _check_start_is_free(scenario)
     return scenario
+
+
+def default_guidance() -> GuidanceParams:
+    """The guidance parameters of ``config/guidance.toml``."""
+    path = config_dir() / "guidance.toml"
+    return GuidanceParams.from_table(Table(load_toml(path), path))
 
 
 def _bicycle_config(params: str, veh: Table) -> BicycleConfig:

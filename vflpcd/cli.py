@@ -27,6 +27,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-plot", action="store_true", help="skip the PNG")
     p.set_defaults(func=cmd_sim)
 
+    p = sub.add_parser("bench", help="benchmarks that measure and print a table (JSON and PNG beside it)")
+    bench = p.add_subparsers(dest="target", required=True)
+    b = bench.add_parser("guidance", help="guidance planning against Hybrid A* (the paper's planning table)")
+    b.add_argument("--scenario", default="dense_static", help="ground scenario (default dense_static)")
+    b.add_argument("--repeat", type=int, default=20, help="guidance planning runs (default 20)")
+    b.add_argument("--astar-repeat", type=int, default=3, help="Hybrid A* runs (default 3)")
+    b.add_argument("--safe-distance", type=float, default=0.0,
+                   help="least body clearance that counts as a safe distance, m (default 0)")
+    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    b.set_defaults(func=cmd_bench_guidance)
+
     p = sub.add_parser("scenarios", help="list the scenarios in config/scenarios")
     p.set_defaults(func=cmd_scenarios)
 
@@ -60,6 +71,20 @@ def cmd_sim(args) -> int:
         files.append(plot_run(record, scenario, out / "plot.png"))
     for f in files:
         print(f"wrote {f}")
+    return 0
+
+
+def cmd_bench_guidance(args) -> int:
+    from sim.bench.guidance import bench_guidance
+    from sim.scenarios import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    if scenario.platform != "ground":
+        raise ConfigError("command line", "--scenario", f"the planning comparison needs a ground scenario, "
+                          f"{scenario.name!r} is {scenario.platform}")
+    if args.repeat < 1 or args.astar_repeat < 1:
+        raise ConfigError("command line", "--repeat", "expected at least one run")
+    bench_guidance(scenario, args.out, args.repeat, args.astar_repeat, args.safe_distance)
     return 0
 
 

@@ -34,3 +34,24 @@ def test_bad_scenario_file_exits_2_in_one_line(tmp_path):
     assert lines == [f"vflpcd: error: {bad}: platform: expected one of ground, aerial, got 'boat'"]
     assert proc.stdout == ""
     assert not Path("results").joinpath("x-pure_pursuit-s0").exists()
+
+
+def test_bench_guidance_prints_the_planning_table_and_writes_json_and_png(tmp_path):
+    proc = subprocess.run(VFLPCD + ["bench", "guidance", "--repeat", "3", "--astar-repeat", "1", "--out", str(tmp_path)],
+                          capture_output=True, text=True, timeout=300, env={**os.environ, "MPLBACKEND": "Agg"})
+    assert proc.returncode == 0, proc.stderr
+    for label in ("L_p (m)", "t_cal median (s)", "SD (clearance >= 0 m)", "min clearance (m)", "grid precompute"):
+        assert label in proc.stdout
+    doc = json.loads((tmp_path / "bench_guidance.json").read_text())
+    gvf, astar = doc["planners"]["VF-LPC guidance"], doc["planners"]["Hybrid A*"]
+    assert gvf["reached_goal"] and astar["success"]
+    assert gvf["t_cal_runs"] == 3 and gvf["grid_precompute_median"] > 0
+    assert gvf["max_v2_kappa_over_a_max"] <= 1.01
+    assert 45.0 < gvf["L_p"] < 60.0 and 45.0 < astar["L_p"] < 60.0
+    assert (tmp_path / "bench_guidance.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_bench_guidance_refuses_an_aerial_scenario(tmp_path):
+    proc = subprocess.run(VFLPCD + ["bench", "guidance", "--scenario", "uav_3d", "--out", str(tmp_path)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "needs a ground scenario" in proc.stderr

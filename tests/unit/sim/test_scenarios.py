@@ -44,7 +44,7 @@ CASES = {
     "wrong type": (BASE.replace("desired = 3.0", 'desired = "fast"'), "speed.desired", "expected a number"),
     "negative speed": (BASE.replace("desired = 3.0", "desired = -3.0"), "speed.desired", "positive"),
     "negative start speed": (BASE.replace("speed = 3.0", "speed = -1.0"), "start.speed", ">= 0"),
-    "obstacle covers start": (BASE.replace("center = [8.0, 0.3]", "center = [1.0, 0.5]"), "obstacles[0]",
+    "obstacle covers start": (BASE.replace("center = [8.0, 1.2]", "center = [1.0, 0.5]"), "obstacles[0]",
                               "covers the start"),
     "missing waypoint file": (BASE.replace('kind = "line"\nstart = [0.0, 0.0]\nend = [47.0, 0.0]',
                                            'kind = "waypoints"\nfile = "nowhere.csv"'), "path.file", "not found"),

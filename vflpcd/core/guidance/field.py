@@ -32,11 +32,14 @@ class ActualTerm:
 
 @dataclass(frozen=True)
 class VirtualTerm:
-    """A virtual obstacle (i in I') serving the actual obstacle ``parent``."""
+    """A virtual obstacle (i in I') serving the actual obstacle ``parent``; it acts only while
+    the path progress is below ``x_stop`` (where the path enters the parent's reactive region):
+    its job is the direction change before R_actl."""
 
     implicit: ObstacleImplicit
     gamma: float
     parent: ObstacleImplicit
+    x_stop: float = np.inf
 
 
 @dataclass
@@ -88,7 +91,8 @@ class GuidanceField:
                 continue
             o = term.implicit
             phi, g = o.value_grad(pts)
-            in_buffer = (phi < 0.0) & (term.parent.value(pts) > 0.0) & free  # M_b = ex R_actl ∩ in R_vrtl
+            before = self.path.progress(pts) < term.x_stop
+            in_buffer = (phi < 0.0) & (term.parent.value(pts) > 0.0) & free & before  # M_b = ex R_actl ∩ in R_vrtl
             s = s_virtual(phi, o.c, self.k_c, in_buffer)
             P *= s
             V += (1.0 - s)[:, None] * unit(guiding(term.gamma, self.k_r, phi - o.c, g))[0]

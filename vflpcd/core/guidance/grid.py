@@ -1,62 +1,105 @@
-"""The field precomputed on a grid map G and the discrete-time guidance of eq. (xi_r).
+"""The field precomputed on grid maps G and the discrete-time guidance of eq. (xi_r).
 
     xi_{k+1} = xi_k + beta chi_c(xi_{k,grid}),  xi_{k,grid} = argmin_{xi_g in G} |xi_k - xi_g|
 
-The grid stores, per cell, chi_P^ and the static actual obstacles' prod cup_Q_i and
-sum cap_R_i chi_R_i^ (computed for all cells at once). A step adds the virtual and moving
-obstacles' terms at xi_k, normalises, and - the paper's rule against deadlock at singular
-points - reuses the previous direction when |chi_c| < epsilon.
+A global grid holds chi_P^; each static actual obstacle has a local grid over its reactive
+region's bounding box holding cup_Q_i and chi_R_i^ for both directions gamma_i = +1 and -1
+(all cells computed at once). A step multiplies and adds the terms of the obstacles whose grids
+contain xi_k, adds the virtual and moving obstacles' terms evaluated at xi_k, normalises and -
+the paper's rule against deadlock at singular points - reuses the previous direction when
+|chi_c| < epsilon.
+
+Direction of each obstacle: the planner's side rule (the term's gamma_i), flipped once, when
+the trajectory first enters the reactive region, if its circulation there would run against the
+path's direction of travel (cos < -0.3). An obstacle entered from the side opposite to the one
+planned is thus never circled backwards.
+
+Discrete-time singular points: besides the paper's rule (|chi_c| < epsilon inherits the previous
+direction), a direction that would reverse the motion within one step (cos < -0.5 with the
+previous one) means the trajectory straddles a singular point between two cells; it inherits
+the previous direction too, for at most MAX_STREAK steps in a row.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from vflpcd.core.guidance.field import GuidanceField
 from vflpcd.core.guidance.implicit import GuidanceError
-from vflpcd.core.guidance.primitives import bump, guiding
+from vflpcd.core.guidance.primitives import bump, guiding, unit
+
+BACKWARDS = -0.3  # cos between the planned circulation and the path tangent that flips gamma_i at entry
+REVERSAL = -0.5  # cos between successive directions that marks a singular point between cells
+MAX_STREAK = 3  # at most this many reversals in a row are overridden (a true turn-back then proceeds)
 
 
 @dataclass(frozen=True)
-class FieldGrid:
-    """origin (2,) of cell (0, 0); h cell size; data (nx, ny, 5) = [chi_P^x, chi_P^y, P, V_x, V_y]."""
+class Grid:
+    """origin (2,) of cell (0, 0); h cell size; data (nx, ny, channels)."""
 
     origin: np.ndarray
     h: float
     data: np.ndarray
 
-    @classmethod
-    def build(cls, field: GuidanceField, bounds: tuple[float, float, float, float], h: float) -> "FieldGrid":
-        """Evaluate the static part of ``field`` on every cell of bounds (xmin, xmax, ymin, ymax)."""
+    @staticmethod
+    def cells(bounds: tuple[float, float, float, float], h: float) -> tuple[np.ndarray, tuple[int, int]]:
         xmin, xmax, ymin, ymax = bounds
         xs = np.arange(xmin, xmax + 0.5 * h, h)
         ys = np.arange(ymin, ymax + 0.5 * h, h)
         X, Y = np.meshgrid(xs, ys, indexing="ij")
-        pts = np.column_stack([X.ravel(), Y.ravel()])
-        data = np.empty((pts.shape[0], 5))
-        data[:, 0:2] = field.path_unit(pts)
-        P, V = field.actual_terms(field.statics, pts, 0.0)
-        data[:, 2], data[:, 3:5] = P, V
-        return cls(origin=np.array([xmin, ymin]), h=h, data=data.reshape(len(xs), len(ys), 5))
+        return np.column_stack([X.ravel(), Y.ravel()]), (len(xs), len(ys))
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:
         nx, ny = self.data.shape[:2]
-        return (self.origin[0], self.origin[0] + (nx - 1) * self.h, self.origin[1], self.origin[1] + (ny - 1) * self.h)
+        return (float(self.origin[0]), float(self.origin[0] + (nx - 1) * self.h),
+                float(self.origin[1]), float(self.origin[1] + (ny - 1) * self.h))
+
+
+@dataclass(frozen=True)
+class FieldGrid:
+    """The global chi_P^ grid (2 channels) and one local grid per static obstacle
+    (5 channels: cup_Q, chi_R^ for gamma = +1, chi_R^ for gamma = -1)."""
+
+    path: Grid
+    obstacles: tuple[Grid, ...]
+
+    @classmethod
+    def build(cls, field: GuidanceField, bounds: tuple[float, float, float, float], h: float) -> "FieldGrid":
+        pts, shape = Grid.cells(bounds, h)
+        path = Grid(np.array([bounds[0], bounds[2]]), h, field.path_unit(pts).reshape(*shape, 2))
+        local = []
+        for term in field.statics:
+            o = term.implicit
+            r = o.reach + h
+            b = (o.center[0] - r, o.center[0] + r, o.center[1] - r, o.center[1] + r)
+            q, qshape = Grid.cells(b, h)
+            phi, g = o.value_grad(q)
+            cup, _ = bump(phi, o.c, field.l1, field.l2)
+            data = np.column_stack([cup, unit(guiding(1.0, field.k_r, phi, g))[0],
+                                    unit(guiding(-1.0, field.k_r, phi, g))[0]])
+            local.append(Grid(np.array([b[0], b[2]]), h, data.reshape(*qshape, 5)))
+        return cls(path=path, obstacles=tuple(local))
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        return self.path.bounds
 
 
 @dataclass(frozen=True)
 class Integration:
     """xy (K, 2) the planned points; reached: progress reached x_end; inherited: steps that reused
-    the previous direction (|chi_c| < epsilon)."""
+    the previous direction (|chi_c| < epsilon); gammas: the direction fixed for each static obstacle
+    (None if never entered); virtual_off: the step at which each virtual obstacle stopped acting."""
 
     xy: np.ndarray
     reached: bool
     inherited: int
+    gammas: tuple
+    virtual_off: tuple
 
 
 def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: float, beta: float,
@@ -69,24 +112,49 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
     near zero. Raises GuidanceError if the trajectory leaves the grid.
     """
     x, y = float(start[0]), float(start[1])
-    ox, oy, h = float(grid.origin[0]), float(grid.origin[1]), grid.h
-    nx, ny = grid.data.shape[:2]
-    data = grid.data
-    prev = None if heading is None else np.asarray(heading, float) / np.linalg.norm(heading)
-    enabled = np.ones(len(field.virtuals), bool)
-    virt = [(v, v.implicit.center, float(v.implicit.axes[0]), v.parent) for v in field.virtuals]
+    pg = grid.path
+    ox, oy, h = float(pg.origin[0]), float(pg.origin[1]), pg.h
+    nx, ny = pg.data.shape[:2]
+    pdata = pg.data
+    inv_h = 1.0 / h
+    # per obstacle: origin, the float cell-index limits (nx - 0.5, ny - 0.5), data, the side rule's gamma
+    local = [(float(g.origin[0]), float(g.origin[1]), g.data.shape[0] - 0.5, g.data.shape[1] - 0.5, g.data, term.gamma)
+             for g, term in zip(grid.obstacles, field.statics)]
+    gammas: list[float | None] = [None] * len(local)
+    prev = None if heading is None else tuple(np.asarray(heading, float) / np.linalg.norm(heading))
+    virtual_off: list[int | None] = [None] * len(field.virtuals)
+    virt = [(v, v.implicit.center, float(v.implicit.axes[0])) for v in field.virtuals]
     if any(v.implicit.p != 2.0 or v.implicit.axes[0] != v.implicit.axes[1] for v in field.virtuals):
         raise GuidanceError("virtual obstacles must be circles")
     k_c, k_r = field.k_c, field.k_r
     po, pd = field.path.progress_frame()  # progress = (xi - po) . pd
     xy = [(x, y)]
     inherited = 0
+    streak = 0  # consecutive inherited steps
     reached = False
     for k in range(max_steps):
-        i, j = int(round((x - ox) / h)), int(round((y - oy) / h))
-        if not (0 <= i < nx and 0 <= j < ny):
-            raise GuidanceError(f"the planned path left the grid at ({x:.2f}, {y:.2f}); grid bounds {grid.bounds}")
-        cpx, cpy, P, Vx, Vy = data[i, j]
+        fi, fj = (x - ox) * inv_h + 0.5, (y - oy) * inv_h + 0.5  # nearest cell: floor(index + 0.5)
+        if not (0.0 <= fi < nx and 0.0 <= fj < ny):
+            raise GuidanceError(f"the planned path left the grid at ({x:.2f}, {y:.2f}); grid bounds {pg.bounds}")
+        i, j = int(fi), int(fj)
+        cpx, cpy = pdata.item(i, j, 0), pdata.item(i, j, 1)
+        P, Vx, Vy = 1.0, 0.0, 0.0
+        for n, (gx0, gy0, gnx, gny, gdata, gamma_side) in enumerate(local):
+            fa, fb = (x - gx0) * inv_h, (y - gy0) * inv_h
+            if not (-0.5 <= fa < gnx and -0.5 <= fb < gny):
+                continue
+            a, b = int(fa + 0.5), int(fb + 0.5)
+            cup = gdata.item(a, b, 0)
+            if cup == 1.0:
+                continue
+            rpx, rpy, rmx, rmy = gdata.item(a, b, 1), gdata.item(a, b, 2), gdata.item(a, b, 3), gdata.item(a, b, 4)
+            if gammas[n] is None:  # first entry into R_i: keep the side rule's gamma_i unless it runs backwards
+                tx, ty = field.path.tangent(x, y)
+                rx, ry = (rpx, rpy) if gamma_side > 0 else (rmx, rmy)
+                gammas[n] = -gamma_side if rx * tx + ry * ty < BACKWARDS else gamma_side
+            rx, ry = (rpx, rpy) if gammas[n] > 0 else (rmx, rmy)
+            P *= cup
+            Vx, Vy = Vx + (1.0 - cup) * rx, Vy + (1.0 - cup) * ry
         if field.movers:
             t = t0 + k * beta / max(speed, 1e-3)
             for term in field.movers:
@@ -97,17 +165,20 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
                 phi, g = o.value_grad(np.array([[x, y]]), t)
                 cup, cap = bump(phi, o.c, field.l1, field.l2)
                 chi = guiding(term.gamma, field.k_r, phi, g)[0]
-                chi = chi / max(np.hypot(chi[0], chi[1]), 1e-300)
+                chi = chi / max(math.hypot(chi[0], chi[1]), 1e-300)
                 P *= cup[0]
                 Vx, Vy = Vx + cap[0] * chi[0], Vy + cap[0] * chi[1]
         free = P == 1.0  # outside every actual reactive region: where virtual obstacles may act
-        for n, (term, c, radius, parent) in enumerate(virt):
+        progress = (x - po[0]) * pd[0] + (y - po[1]) * pd[1]
+        for n, (term, c, radius) in enumerate(virt):
+            if virtual_off[n] is not None:
+                continue
             dx, dy = x - c[0], y - c[1]
             r = (dx * dx + dy * dy) ** 0.5
-            if not enabled[n] or r >= radius or r == 0.0:
+            if r >= radius or r == 0.0:
                 continue
-            if parent.value_at(x, y) <= 0.0:  # inside R_actl: the virtual obstacle stops acting (remark 2)
-                enabled[n] = False
+            if progress >= term.x_stop or term.parent.value_at(x, y) <= 0.0:
+                virtual_off[n] = k  # past the entry into R_actl, or inside it (remark 2): stop acting
                 continue
             if not free:
                 continue
@@ -123,12 +194,15 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
             Vx, Vy = Vx + (1.0 - s_i) * kx / kn, Vy + (1.0 - s_i) * ky / kn
         cx, cy = P * cpx + Vx, P * cpy + Vy
         norm = (cx * cx + cy * cy) ** 0.5
-        if norm < epsilon:
+        reversal = prev is not None and (cx * prev[0] + cy * prev[1]) < REVERSAL * norm and streak < MAX_STREAK
+        if norm < epsilon or reversal:
+            streak += 1
             if prev is None:
                 raise GuidanceError(f"the field vanishes at the start ({x:.2f}, {y:.2f}) and there is no heading to inherit")
             ux, uy = prev
             inherited += 1
         else:
+            streak = 0
             ux, uy = cx / norm, cy / norm
             prev = (ux, uy)
         x, y = x + beta * ux, y + beta * uy
@@ -136,4 +210,5 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
         if (x - po[0]) * pd[0] + (y - po[1]) * pd[1] >= x_end:
             reached = True
             break
-    return Integration(xy=np.asarray(xy), reached=reached, inherited=inherited)
+    return Integration(xy=np.asarray(xy), reached=reached, inherited=inherited, gammas=tuple(gammas),
+                       virtual_off=tuple(virtual_off))

@@ -66,6 +66,10 @@ class LinePath:
         """(origin, unit direction): progress = (xi - origin) . direction."""
         return self.a, self.d
 
+    def tangent(self, x: float, y: float) -> tuple[float, float]:
+        """Unit forward tangent of the path at the foot of (x, y)."""
+        return float(self.d[0]), float(self.d[1])
+
 
 @dataclass(frozen=True)
 class CirclePath:
@@ -128,6 +132,13 @@ class GraphPath:
     def progress_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """(origin, unit direction): progress x' = (xi - origin) . direction."""
         return self.origin, self.R[:, 0]
+
+    def tangent(self, x: float, y: float) -> tuple[float, float]:
+        """Unit forward tangent of the graph at the abscissa x' of (x, y)."""
+        xl = float(self.to_local(np.array([[x, y]]))[0, 0])
+        slope = float(self.df(min(max(xl, self.x0), self.x1)))
+        t = self.R @ np.array([1.0, slope])
+        return tuple(t / np.linalg.norm(t))
 
     def point(self, x: np.ndarray) -> np.ndarray:
         """World points of the graph at local abscissae x (K,) -> (K, 2)."""

@@ -11,7 +11,10 @@
 3. Virtual obstacles (``virtual = "auto"``): for each static obstacle whose reactive region
    the stretch enters, a circle whose repulsive boundary Q_vrtl has the turning radius
    v_d^2 / a_max, touches the path ``r_q * lead`` metres before the entry into R_actl on the
-   passing side, and is pushed outwards until in-Q_vrtl ∩ P ⊂ in-R_actl ∩ P (remark 1).
+   passing side, and is pushed outwards until in-Q_vrtl ∩ P ⊂ in-R_actl ∩ P (remark 1). It
+   acts in its buffer region only outside every actual reactive region and only before the
+   path's entry into R_actl (beyond the paper, whose remark 2 alone leaves a virtual obstacle
+   acting on a robot that was turned past R_actl without entering it).
 4. The static part of chi_c is evaluated on a grid; eq. (xi_r) is integrated from the robot.
 5. The integrated points are smoothed (Gaussian, ``smoothing`` m) and speed-planned.
 """
@@ -63,6 +66,8 @@ class GuidancePlan:
     reached: bool
     inherited: int
     field: GuidanceField
+    gammas: tuple = ()
+    virtual_off: tuple = ()
 
 
 class GuidancePlanner:
@@ -105,7 +110,7 @@ class GuidancePlanner:
         gamma = np.sign(along) if along != 0.0 else -side
         return ActualTerm(implicit=o, gamma=float(gamma), side=side)
 
-    def virtual_for(self, term: ActualTerm, s0: float, s_end: float) -> VirtualTerm | None:
+    def virtual_for(self, term: ActualTerm, s0: float, s_end: float, graph: GraphPath) -> VirtualTerm | None:
         """The automatic virtual obstacle of an actual one (None if the stretch does not enter R_actl
         or there is no room before it)."""
         o = term.implicit
@@ -132,23 +137,28 @@ class GuidancePlanner:
             offset *= 1.05
         else:
             return None
-        _, g = v.value_grad((center - n_t * offset * (1.0 + v.c) / (r_q / r_R))[None, :] if False else
-                            (p_t + n_t * (offset - r_q))[None, :])
+        _, g = v.value_grad((p_t + n_t * (offset - r_q))[None, :])  # the point of Q_vrtl nearest the path
         along = float(t_t @ (E @ g[0]))
-        return VirtualTerm(implicit=v, gamma=float(np.sign(along) or term.side), parent=o)
+        x_stop = float(graph.progress(pts[inside[0]][None, :])[0])
+        return VirtualTerm(implicit=v, gamma=float(np.sign(along) or term.side), parent=o, x_stop=x_stop)
 
-    def manual_virtual(self, spec, terms: dict[str, ActualTerm]) -> VirtualTerm:
+    def manual_virtual(self, spec, terms: dict[str, ActualTerm], graph: GraphPath, s0: float,
+                       s_end: float) -> VirtualTerm:
         if spec.parent not in terms:
             raise GuidanceError(f"virtual obstacle at {spec.center.tolist()}: parent {spec.parent!r} is not an "
                                 f"obstacle near this stretch (have: {', '.join(sorted(terms)) or 'none'})")
         parent = terms[spec.parent]
+        pts = self.path.point_at(np.arange(s0, s_end, 0.25))
+        inside = np.nonzero(parent.implicit.value(pts) < 0.0)[0]
+        x_stop = float(graph.progress(pts[inside[0]][None, :])[0]) if inside.size else np.inf
         v = ObstacleImplicit(f"virtual:{spec.parent}", spec.center, 0.0, np.zeros(2), 0.0,
                              np.array([spec.radius, spec.radius]), 2.0, None, spec.c)
         if spec.gamma:
-            return VirtualTerm(implicit=v, gamma=float(spec.gamma), parent=parent.implicit)
+            return VirtualTerm(implicit=v, gamma=float(spec.gamma), parent=parent.implicit, x_stop=x_stop)
         proj = self.path.project(spec.center)
         _, g = v.value_grad(proj.point[None, :])
-        return VirtualTerm(implicit=v, gamma=float(np.sign(proj.tangent @ (E @ g[0])) or 1.0), parent=parent.implicit)
+        return VirtualTerm(implicit=v, gamma=float(np.sign(proj.tangent @ (E @ g[0])) or 1.0), parent=parent.implicit,
+                           x_stop=x_stop)
 
     # ------------------------------------------------------------------ planning
     def prepare(self, s0: float, statics: Sequence[ObstacleState]) -> Prepared:
@@ -173,9 +183,9 @@ class GuidancePlanner:
         field = GuidanceField(path=graph, gamma0=-1.0, k_p=p.k_p, k_r=p.k_r, l1=p.l1, l2=p.l2, k_c=p.k_c,
                               statics=list(terms.values()))
         if p.virtual_obstacles:
-            field.virtuals = [self.manual_virtual(spec, terms) for spec in p.virtual_obstacles]
+            field.virtuals = [self.manual_virtual(spec, terms, graph, s0, s_end) for spec in p.virtual_obstacles]
         elif p.virtual == "auto":
-            field.virtuals = [v for t in terms.values() if (v := self.virtual_for(t, s0, s_end)) is not None]
+            field.virtuals = [v for t in terms.values() if (v := self.virtual_for(t, s0, s_end, graph)) is not None]
         if ends_path:
             goal = self.path.point_at(self.path.length)[None, :]
             for t in terms.values():
@@ -210,7 +220,8 @@ class GuidancePlanner:
                                  v_end=0.0 if (prepared.ends_path and res.reached) else None)
         trajectory = self._timed(xy, s, v, t0)
         return GuidancePlan(trajectory=trajectory, xy=xy, s=s, kappa=kappa, v=v, raw=res.xy,
-                            reached=res.reached, inherited=res.inherited, field=field)
+                            reached=res.reached, inherited=res.inherited, field=field, gammas=res.gammas,
+                            virtual_off=res.virtual_off)
 
     def _timed(self, xy: np.ndarray, s: np.ndarray, v: np.ndarray, t0: float) -> Trajectory:
         t_s = arrival_times(s, v)

@@ -1,0 +1,185 @@
+"""Guidance planning: safety, reachability and the kinodynamic limit over random obstacle fields."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from sim.scenarios import load_scenario
+from vflpcd.core.guidance.grid import FieldGrid, integrate
+from vflpcd.core.guidance.implicit import GuidanceError
+from vflpcd.core.guidance.params import GuidanceParams
+from vflpcd.core.guidance.planner import GuidancePlanner
+from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.path import ReferencePath
+from vflpcd.core.shapes import Box, Circle, Ellipse
+from vflpcd.errors import ConfigError
+from vflpcd.paths import config_dir
+from vflpcd.tomlread import Table, load_toml
+
+
+@pytest.fixture(scope="module")
+def params():
+    return GuidanceParams.from_table(Table(load_toml(config_dir() / "guidance.toml"), "guidance.toml"))
+
+
+def static(oid, shape, x, y, yaw=0.0):
+    return ObstacleState(id=oid, shape=shape, center=np.array([x, y]), yaw=yaw, velocity=np.zeros(2), stamp=0.0)
+
+
+def turn_curvature(xy):
+    """Independent curvature estimate: turn angle between consecutive segments over their mean length."""
+    d = np.diff(xy, axis=0)
+    ang = np.arctan2(d[:, 1], d[:, 0])
+    turn = np.abs(np.angle(np.exp(1j * np.diff(ang))))
+    ds = 0.5 * (np.linalg.norm(d[1:], axis=1) + np.linalg.norm(d[:-1], axis=1))
+    return np.concatenate([[0.0], turn / ds, [0.0]])
+
+
+def random_field(rng, planner_factory):
+    """A 60 m straight path with 1-4 obstacles whose reactive regions are disjoint and clear of the ends."""
+    L = 60.0
+    path = ReferencePath.line([0.0, 0.0], [L, 0.0])
+    v_d = rng.uniform(2.0, 7.0)
+    planner = planner_factory(path, v_d)
+    obstacles, x = [], rng.uniform(14.0, 18.0)
+    for k in range(rng.integers(1, 5)):
+        kind = rng.integers(3)
+        shape = (Circle(rng.uniform(0.4, 1.5)) if kind == 0 else
+                 Ellipse(rng.uniform(0.6, 2.0), rng.uniform(0.4, 1.2)) if kind == 1 else
+                 Box(rng.uniform(0.8, 3.0), rng.uniform(0.6, 1.5)))
+        o = static(f"o{k}", shape, 0.0, rng.uniform(-1.5, 1.5), rng.uniform(-np.pi, np.pi))
+        reach = planner.implicit(o).reach
+        x = x + (reach if k else 0.0)
+        if x + reach + 4.0 > L:
+            break
+        obstacles.append(replace(o, center=np.array([x, o.center[1]])))
+        x += reach + 2.0
+    return planner, path, obstacles
+
+
+@pytest.mark.parametrize("chunk", range(4))
+def test_random_fields_reach_the_goal_safely_within_the_lateral_acceleration_limit(params, chunk):
+    """200 seeded fields; the first half with the kinodynamic field's virtual obstacles, the rest without."""
+    a_max = 3.0
+    chosen = replace(params, virtual="auto" if chunk < 2 else "off")
+
+    def factory(path, v_d):
+        return GuidancePlanner(path, chosen, v_d, a_max, body_radius=1.0, control_period=0.05)
+
+    for seed in range(chunk * 50, chunk * 50 + 50):
+        rng = np.random.default_rng(seed)
+        planner, path, obstacles = random_field(rng, factory)
+        prepared = planner.prepare(0.0, obstacles)
+        plan = planner.plan(prepared, np.array([0.0, 0.0]), 0.0, planner.v_desired)
+        assert plan.reached, f"seed {seed}"
+        assert np.linalg.norm(plan.xy[-1] - path.point_at(path.length)) < 0.5, f"seed {seed}"
+        for term in prepared.field.statics:
+            o = term.implicit
+            assert np.min(o.value(plan.raw)) > o.c, f"seed {seed}: raw path enters Q of {o.name}"
+            assert np.min(o.value(plan.xy)) > o.c, f"seed {seed}: smoothed path enters Q of {o.name}"
+        kappa = turn_curvature(plan.xy)
+        assert np.max(plan.v ** 2 * kappa) <= 1.01 * a_max, f"seed {seed}"
+        traj = plan.trajectory
+        assert np.all(np.diff(traj.t) > 0) and traj.v[-1] < 0.2 and np.all(traj.v >= 0)
+
+
+@pytest.mark.parametrize("virtual", ["auto", "off"])
+def test_symmetric_head_on_obstacle_does_not_deadlock(params, virtual):
+    path = ReferencePath.line([0.0, 0.0], [40.0, 0.0])
+    planner = GuidancePlanner(path, replace(params, virtual=virtual), 4.0, 3.0, 1.0, 0.05)
+    prepared = planner.prepare(0.0, [static("head_on", Circle(1.5), 20.0, 0.0)])
+    plan = planner.plan(prepared, np.array([0.0, 0.0]), 0.0, 4.0)
+    assert plan.reached and plan.xy[-1, 0] > 39.0
+    o = prepared.field.statics[0].implicit
+    assert np.min(o.value(plan.xy)) > o.c
+    assert prepared.field.statics[0].side == 1.0  # a tie passes on the left
+
+
+def test_obstacle_passes_on_the_side_that_leaves_the_path_least(params):
+    path = ReferencePath.line([0.0, 0.0], [40.0, 0.0])
+    planner = GuidancePlanner(path, params, 4.0, 3.0, 1.0, 0.05)
+    prepared = planner.prepare(0.0, [static("above", Circle(1.0), 15.0, 0.8), static("below", Box(3.0, 1.0), 30.0, -0.5)])
+    sides = {t.implicit.name: t.side for t in prepared.field.statics}
+    assert sides == {"above": -1.0, "below": 1.0}
+    plan = planner.plan(prepared, np.array([0.0, 0.0]), 0.0, 4.0)
+    near = lambda x: plan.xy[np.argmin(np.abs(plan.xy[:, 0] - x)), 1]  # noqa: E731
+    assert near(15.0) < -1.0 and near(30.0) > 1.0
+
+
+def test_auto_virtual_obstacles_respect_remark_1_and_stop_after_the_actual_region(params):
+    path = ReferencePath.line([0.0, 0.0], [60.0, 0.0])
+    planner = GuidancePlanner(path, replace(params, virtual="auto"), 6.0, 3.0, 1.0, 0.05)
+    prepared = planner.prepare(0.0, [static("car", Box(4.5, 1.9), 30.0, 0.3)])
+    assert len(prepared.field.virtuals) == 1
+    v = prepared.field.virtuals[0]
+    assert v.implicit.axes[0] == pytest.approx(6.0 ** 2 / 3.0 + params.virtual_buffer)
+    pts = path.point_at(np.linspace(0, 60, 6001))
+    in_q = v.implicit.value(pts) < v.implicit.c
+    assert np.all(v.parent.value(pts[in_q]) < 0.0)                       # in-Q_vrtl ∩ P ⊂ in-R_actl ∩ P
+    plan = planner.plan(prepared, np.array([0.0, 0.0]), 0.0, 6.0)
+    off = plan.virtual_off[0]
+    assert off is not None
+    p_off = plan.raw[off]
+    progress = prepared.field.path.progress(p_off[None, :])[0]
+    assert v.parent.value(p_off[None, :])[0] <= 0.0 or progress >= v.x_stop  # stopped at R_actl (remark 2)
+    # once past, the virtual obstacle no longer acts in its buffer region: a trajectory started
+    # there takes the same first step with and without it
+    probe = np.array([v.x_stop + 1.0, v.implicit.center[1] + 0.8 * v.implicit.axes[0] * np.sign(-v.implicit.center[1])])
+    probe[1] = v.implicit.center[1] - np.sign(v.implicit.center[1]) * 0.5 * v.implicit.axes[0]
+    assert v.implicit.value(probe[None, :])[0] < 0.0 and v.parent.value(probe[None, :])[0] > 0.0
+    bare = replace(prepared.field, virtuals=[])
+    first = integrate(prepared.field, prepared.grid, probe, prepared.x_end, 0.1, 1e-3, 1).xy[1]
+    assert first == pytest.approx(integrate(bare, prepared.grid, probe, prepared.x_end, 0.1, 1e-3, 1).xy[1])
+    # and before R_actl it has already turned the robot towards the passing side
+    side = prepared.field.statics[0].side
+    plain = planner.plan(replace(prepared, field=bare), np.zeros(2), 0.0, 6.0).raw
+    at_stop = lambda xy: xy[np.argmin(np.abs(xy[:, 0] - (v.x_stop - 0.5)))]  # noqa: E731
+    assert side * at_stop(plan.raw)[1] > side * at_stop(plain)[1] + 0.1
+
+
+def test_obstacle_on_the_start_or_the_goal_is_named(params):
+    path = ReferencePath.line([0.0, 0.0], [40.0, 0.0])
+    planner = GuidancePlanner(path, params, 4.0, 3.0, 1.0, 0.05)
+    with pytest.raises(GuidanceError, match="'blocker' covers the goal"):
+        planner.prepare(0.0, [static("blocker", Circle(1.0), 40.5, 0.0)])
+    prepared = planner.prepare(0.0, [static("rock", Circle(1.0), 1.0, 0.5)])
+    with pytest.raises(GuidanceError, match="'rock' covers the start"):
+        planner.plan(prepared, np.array([0.0, 0.0]), 0.0, 4.0)
+
+
+def test_leaving_the_grid_is_an_error(params):
+    path = ReferencePath.line([0.0, 0.0], [40.0, 0.0])
+    planner = GuidancePlanner(path, params, 4.0, 3.0, 1.0, 0.05)
+    prepared = planner.prepare(0.0, [])
+    tiny = FieldGrid.build(prepared.field, (-1.0, 5.0, -1.0, 1.0), 0.1)
+    with pytest.raises(GuidanceError, match="left the grid"):
+        integrate(prepared.field, tiny, np.zeros(2), prepared.x_end, 0.1, 1e-3, 1000)
+
+
+def test_bad_guidance_parameters_are_named(tmp_path):
+    text = (config_dir() / "guidance.toml").read_text()
+    for old, new, field in (("k_p = 1.0", "k_p = nan", "k_p"), ("beta = 0.1", "beta = -0.1", "beta"),
+                            ('virtual = "off"', 'virtual = "sometimes"', "virtual")):
+        t = Table(__import__("tomllib").loads(text.replace(old, new)), "g.toml")
+        with pytest.raises(ConfigError, match=f"g.toml: {field}:"):
+            GuidanceParams.from_table(t)
+    base = GuidanceParams.from_table(Table(__import__("tomllib").loads(text), "g.toml"))
+    t = Table({"virtual_obstacles": [{"center": [1.0, 2.0], "radius": 3.0, "c": 0.2, "parent": "x"}]}, "s.toml",
+              "guidance")
+    with pytest.raises(ConfigError, match=r"guidance.virtual_obstacles\[0\].c: .*c_i < 0"):
+        GuidanceParams.from_table(t, base)
+
+
+def test_dense_static_plan_is_safe_and_timed(params):
+    s = load_scenario("dense_static")
+    planner = GuidancePlanner(s.path, params, s.v_desired, s.a_lat_max, s.footprint.radius, s.control_period)
+    obstacles = [static(o.id, o.shape, *o.center, o.yaw) for o in s.obstacles]
+    prepared = planner.prepare(0.0, obstacles)
+    plan = planner.plan(prepared, s.start[:2], 0.0, s.start[3])
+    assert plan.reached
+    traj = plan.trajectory
+    assert traj.t[1] - traj.t[0] == pytest.approx(s.control_period)
+    assert np.max(np.abs(traj.v ** 2 * traj.kappa)) <= 1.01 * s.a_lat_max
+    ref = traj.vehicle_states()
+    assert ref.shape == (len(traj.t), 6) and np.all(np.isfinite(ref))
