@@ -89,6 +89,15 @@ class FieldGrid:
         return self.path.bounds
 
 
+def step_time(k: int, t0: float, beta: float, speed: float, step_times: np.ndarray | None) -> float:
+    """When the trajectory reaches step k: from step_times (K,) where known, else at ``speed``."""
+    if step_times is not None and len(step_times):
+        if k < len(step_times):
+            return float(step_times[k])
+        return float(step_times[-1]) + (k - len(step_times) + 1) * beta / max(speed, 1e-3)
+    return t0 + k * beta / max(speed, 1e-3)
+
+
 @dataclass(frozen=True)
 class Integration:
     """xy (K, 2) the planned points; reached: progress reached x_end; inherited: steps that reused
@@ -104,12 +113,13 @@ class Integration:
 
 def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: float, beta: float,
               epsilon: float, max_steps: int, t0: float = 0.0, speed: float = 1.0,
-              heading: np.ndarray | None = None) -> Integration:
+              heading: np.ndarray | None = None, step_times: np.ndarray | None = None) -> Integration:
     """Run eq. (xi_r) from start (2,) until the path progress reaches x_end.
 
-    Moving obstacles are placed where they will be when the trajectory gets there, assuming it
-    advances at ``speed``; heading (2,) is the direction inherited if the first vector is
-    near zero. Raises GuidanceError if the trajectory leaves the grid.
+    Moving obstacles are placed where they will be when the trajectory gets there: at
+    step_times[k] for step k (from an earlier pass's speed plan) or, beyond them, advancing at
+    ``speed``; heading (2,) is the direction inherited if the first vector is near zero. Raises
+    GuidanceError if the trajectory leaves the grid.
     """
     x, y = float(start[0]), float(start[1])
     pg = grid.path
@@ -156,7 +166,7 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
             P *= cup
             Vx, Vy = Vx + (1.0 - cup) * rx, Vy + (1.0 - cup) * ry
         if field.movers:
-            t = t0 + k * beta / max(speed, 1e-3)
+            t = step_time(k, t0, beta, speed, step_times)
             for term in field.movers:
                 o = term.implicit
                 c = o.center_at(t)

@@ -226,7 +226,7 @@ class ObstacleImplicit:
             raise GuidanceError(f"obstacle {name!r}: repulsive_distance ({repulsive_distance}) must be smaller "
                                 f"than reactive_distance ({reactive_distance})")
         p, q, halfs = _EXPONENTS[shape.kind]
-        rays = rays or (720 if shape.dim == 2 else 4000)
+        rays = rays or (720 if shape.dim == 2 else 2500)
         base = halfs(shape) + reactive_distance
         unit = cls(name, np.zeros(shape.dim), 0.0, np.zeros(shape.dim), 0.0, base, p, q, -0.5)
         scale = 1.005 * np.max(unit.norm(_inflated_boundary(shape, reactive_distance, rays)))

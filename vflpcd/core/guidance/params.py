@@ -8,7 +8,7 @@ import numpy as np
 
 from vflpcd.tomlread import Table
 
-_POSITIVE = ("k_p", "k_r", "l1", "l2", "k_c", "beta", "grid_resolution", "epsilon", "reactive_margin",
+_POSITIVE = ("k_p", "k_r", "l1", "l2", "k_c", "beta", "grid_resolution", "corridor", "epsilon", "reactive_margin",
              "horizon", "a_accel", "a_decel", "virtual_buffer")
 
 
@@ -33,6 +33,7 @@ class GuidanceParams:
     k_c: float
     beta: float
     grid_resolution: float
+    corridor: float
     epsilon: float
     safety_margin: float
     reactive_margin: float

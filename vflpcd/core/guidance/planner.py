@@ -25,18 +25,18 @@ from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
 
 from vflpcd.core.guidance.field import ActualTerm, GuidanceField, VirtualTerm
 from vflpcd.core.guidance.grid import FieldGrid, Integration, integrate
 from vflpcd.core.guidance.implicit import E, GraphPath, GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.params import GuidanceParams
-from vflpcd.core.guidance.speed import arrival_times, plan_speed, signed_curvature
-from vflpcd.core.guidance.trajectory import Trajectory
+from vflpcd.core.guidance.speed import arrival_times, plan_speed, smooth_path
+from vflpcd.core.guidance.trajectory import Trajectory, timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
 
 VIRTUAL_LEAD = np.radians(30.0)  # heading change the virtual obstacle gives before R_actl
+MOVER_PASSES = 3  # re-integrations with moving obstacles placed at the previous pass's arrival times
 
 
 @dataclass(frozen=True)
@@ -171,15 +171,17 @@ class GuidancePlanner:
         graph = GraphPath.from_reference(self.path, s0 - back, s_end)
         pts = self.path.point_at(np.linspace(s0, s_end, 200))
         lo, hi = pts.min(axis=0), pts.max(axis=0)
+        near_lo, near_hi = lo, hi
         terms: dict[str, ActualTerm] = {}
         for o in statics:
             imp = self.implicit(o)
-            if np.all(np.abs(np.clip(imp.center, lo, hi) - imp.center) <= imp.reach + 1.0):
+            if np.all(np.abs(np.clip(imp.center, near_lo, near_hi) - imp.center) <= imp.reach + 1.0):
                 terms[o.id] = self.actual_term(imp)
+        lo, hi = lo - p.corridor, hi + p.corridor
         for t in terms.values():  # lo/hi cover every relevant reactive region
-            lo = np.minimum(lo, t.implicit.center - t.implicit.reach)
-            hi = np.maximum(hi, t.implicit.center + t.implicit.reach)
-        pad = 2.0
+            lo = np.minimum(lo, t.implicit.center - t.implicit.reach - 2.0)
+            hi = np.maximum(hi, t.implicit.center + t.implicit.reach + 2.0)
+        pad = 0.0
         field = GuidanceField(path=graph, gamma0=-1.0, k_p=p.k_p, k_r=p.k_r, l1=p.l1, l2=p.l2, k_c=p.k_c,
                               statics=list(terms.values()))
         if p.virtual_obstacles:
@@ -196,10 +198,21 @@ class GuidancePlanner:
         x_end = float(graph.progress(self.path.point_at(s_end)[None, :])[0]) - (p.beta if ends_path else 0.0)
         return Prepared(field=field, grid=grid, s0=s0, s_end=s_end, x_end=x_end, ends_path=ends_path)
 
+    def _integrate_and_time(self, field, prepared: Prepared, start, t0, v0, heading, step_times):
+        """Eq. (xi_r), smoothing and speed planning: (integration, xy, s, kappa, v)."""
+        p = self.params
+        length = prepared.s_end - prepared.s0
+        res: Integration = integrate(field, prepared.grid, start, prepared.x_end, p.beta, p.epsilon,
+                                     max_steps=int(4 * (length + 20.0) / p.beta), t0=t0,
+                                     speed=max(v0, 0.5 * self.v_desired), heading=heading, step_times=step_times)
+        xy = smooth_path(res.xy, p.smoothing / p.beta)
+        s, kappa, v = plan_speed(xy, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
+                                 v_end=0.0 if (prepared.ends_path and res.reached) else None)
+        return res, xy, s, kappa, v
+
     def plan(self, prepared: Prepared, start: np.ndarray, t0: float, v0: float,
              movers: Sequence[ObstacleState] = (), heading: float | None = None) -> GuidancePlan:
         """Integrate from start (2,) at time t0 and speed v0, with moving obstacles, and time the result."""
-        p = self.params
         start = np.asarray(start, float)
         if start.shape != (2,) or not np.all(np.isfinite(start)):
             raise GuidanceError(f"start must be 2 finite numbers, got {start!r}")
@@ -210,29 +223,13 @@ class GuidancePlanner:
             if t.implicit.value(start[None, :], t0)[0] <= t.implicit.c:
                 raise GuidanceError(f"obstacle {t.implicit.name!r} covers the start at {start.round(2).tolist()} "
                                     "(it is inside its repulsive boundary)")
-        length = prepared.s_end - prepared.s0
         h = None if heading is None else np.array([np.cos(heading), np.sin(heading)])
-        res: Integration = integrate(field, prepared.grid, start, prepared.x_end, p.beta, p.epsilon,
-                                     max_steps=int(4 * (length + 20.0) / p.beta), t0=t0,
-                                     speed=max(v0, 0.5 * self.v_desired), heading=h)
-        xy = gaussian_filter1d(res.xy, sigma=max(p.smoothing / p.beta, 1e-6), axis=0, mode="nearest")
-        s, kappa, v = plan_speed(xy, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
-                                 v_end=0.0 if (prepared.ends_path and res.reached) else None)
-        trajectory = self._timed(xy, s, v, t0)
+        res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h, None)
+        for _ in range(MOVER_PASSES if movers else 0):  # place moving obstacles at the last pass's times
+            times = t0 + arrival_times(s, v)
+            res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h,
+                                                            times[np.isfinite(times)])
+        trajectory = timed_trajectory(xy, s, v, t0, self.dt)
         return GuidancePlan(trajectory=trajectory, xy=xy, s=s, kappa=kappa, v=v, raw=res.xy,
                             reached=res.reached, inherited=res.inherited, field=field, gammas=res.gammas,
                             virtual_off=res.virtual_off)
-
-    def _timed(self, xy: np.ndarray, s: np.ndarray, v: np.ndarray, t0: float) -> Trajectory:
-        t_s = arrival_times(s, v)
-        finite = np.isfinite(t_s)
-        xy, s, v, t_s = xy[finite], s[finite], v[finite], t_s[finite]
-        t = np.arange(0.0, t_s[-1] + 1e-9, self.dt)
-        heading = np.unwrap(np.arctan2(*np.gradient(xy, axis=0)[:, ::-1].T))
-        k_signed = signed_curvature(xy)
-        vt = np.interp(t, t_s, v)
-        kt = np.interp(t, t_s, k_signed)
-        return Trajectory(t=t + t0, pos=np.column_stack([np.interp(t, t_s, xy[:, 0]), np.interp(t, t_s, xy[:, 1])]),
-                          psi=np.interp(t, t_s, heading), v=vt, omega=vt * kt,
-                          accel=np.gradient(vt, t) if len(t) > 1 else np.zeros_like(t), kappa=kt,
-                          s=np.interp(t, t_s, s))

@@ -13,11 +13,13 @@ import numpy as np
 
 
 def menger_curvature(xy: np.ndarray) -> np.ndarray:
-    """Unsigned curvature of a polyline (K, 2) from the circle through each point and its
-    neighbours (end points copy their neighbour). Returns (K,)."""
+    """Unsigned curvature of a polyline (K, d), d = 2 or 3, from the circle through each point
+    and its neighbours (end points copy their neighbour). Returns (K,)."""
     a, b, c = xy[:-2], xy[1:-1], xy[2:]
     ab, bc, ca = (np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1), np.linalg.norm(a - c, axis=1))
-    cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    u, w = b - a, c - a  # |u x w| = twice the triangle's area, in any dimension
+    cross = np.sqrt(np.maximum(np.einsum("ij,ij->i", u, u) * np.einsum("ij,ij->i", w, w)
+                               - np.einsum("ij,ij->i", u, w) ** 2, 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
         k = np.where(ab * bc * ca > 0.0, 2.0 * np.abs(cross) / (ab * bc * ca), 0.0)
     if len(k) == 0:
@@ -37,7 +39,7 @@ def signed_curvature(xy: np.ndarray) -> np.ndarray:
 
 def plan_speed(xy: np.ndarray, v_desired: float, a_lat_max: float, a_accel: float, a_decel: float,
                v_start: float, v_end: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Speed profile for the path xy (K, 2): returns (s (K,), kappa (K,), v (K,)).
+    """Speed profile for the path xy (K, d): returns (s (K,), kappa (K,), v (K,)).
 
     kappa is the largest Menger curvature of each point and its two neighbours (a
     conservative estimate); v_start is the robot's speed (the profile starts no faster),
@@ -66,3 +68,13 @@ def arrival_times(s: np.ndarray, v: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore"):
         dt = np.where(vm > 0.0, 2.0 * np.diff(s) / vm, np.inf)
     return np.concatenate([[0.0], np.cumsum(dt)])
+
+
+def smooth_path(raw: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian smoothing of a polyline (K, d) with std sigma (samples) that keeps its first point:
+    the offset smoothing makes there fades out linearly over 3 sigma samples."""
+    from scipy.ndimage import gaussian_filter1d
+
+    xy = gaussian_filter1d(raw, sigma=max(sigma, 1e-6), axis=0, mode="nearest")
+    fade = np.clip(1.0 - np.arange(len(xy)) / max(3.0 * sigma, 1.0), 0.0, 1.0)
+    return xy + fade[:, None] * (raw[0] - xy[0])

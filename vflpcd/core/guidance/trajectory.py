@@ -6,14 +6,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vflpcd.core.guidance.speed import arrival_times, menger_curvature, signed_curvature
+
 
 @dataclass(frozen=True)
 class Trajectory:
     """Reference sampled at a fixed period.
 
-    t (M,) s; pos (M, d) m; psi (M,) heading of the path tangent (rad, unwrapped);
-    v (M,) speed m/s; omega (M,) = v kappa yaw rate rad/s; accel (M,) dv/dt m/s^2;
-    kappa (M,) signed curvature 1/m (2-D); s (M,) arc length m.
+    t (M,) s; pos (M, d) m; psi (M,) heading of the path tangent in the horizontal plane (rad,
+    unwrapped); v (M,) speed m/s; omega (M,) = v kappa yaw rate rad/s; accel (M,) dv/dt m/s^2;
+    kappa (M,) curvature 1/m (signed, left positive, in 2-D; unsigned in 3-D); s (M,) arc length m.
     """
 
     t: np.ndarray
@@ -39,3 +41,20 @@ class Trajectory:
         out = {name: np.interp(t, self.t, getattr(self, name)) for name in ("psi", "v", "omega", "accel", "kappa", "s")}
         out["pos"] = np.stack([np.interp(t, self.t, self.pos[:, j]) for j in range(self.pos.shape[1])], axis=-1)
         return out
+
+
+def timed_trajectory(xy: np.ndarray, s: np.ndarray, v: np.ndarray, t0: float, dt: float) -> Trajectory:
+    """Sample a speed-planned path (points xy (K, d), arc lengths s (K,), speeds v (K,)) every dt
+    seconds from t0 (points that are never reached, after a stop, are dropped)."""
+    t_s = arrival_times(s, v)
+    finite = np.isfinite(t_s)
+    xy, s, v, t_s = xy[finite], s[finite], v[finite], t_s[finite]
+    t = np.arange(0.0, t_s[-1] + 1e-9, dt)
+    d = np.gradient(xy, axis=0) if len(xy) > 1 else np.array([[1.0, 0.0] + [0.0] * (xy.shape[1] - 2)])
+    heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    kappa = signed_curvature(xy) if xy.shape[1] == 2 else menger_curvature(xy)
+    vt, kt = np.interp(t, t_s, v), np.interp(t, t_s, kappa)
+    pos = np.column_stack([np.interp(t, t_s, xy[:, j]) for j in range(xy.shape[1])])
+    return Trajectory(t=t + t0, pos=pos, psi=np.interp(t, t_s, heading), v=vt, omega=vt * kt,
+                      accel=np.gradient(vt, t) if len(t) > 1 else np.zeros_like(t), kappa=kt,
+                      s=np.interp(t, t_s, s))

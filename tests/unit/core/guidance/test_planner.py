@@ -183,3 +183,22 @@ def test_dense_static_plan_is_safe_and_timed(params):
     assert np.max(np.abs(traj.v ** 2 * traj.kappa)) <= 1.01 * s.a_lat_max
     ref = traj.vehicle_states()
     assert ref.shape == (len(traj.t), 6) and np.all(np.isfinite(ref))
+
+
+def test_replanning_from_mid_path_around_a_crossing_obstacle(params):
+    """Moving obstacles: the plan starts where the robot is and avoids where the obstacle will be."""
+    path = ReferencePath.line([0.0, 0.0], [80.0, 0.0])
+    planner = GuidancePlanner(path, replace(params, horizon=40.0), 4.0, 3.0, 1.0, 0.05)
+    prepared = planner.prepare(20.0, [])
+    assert prepared.s_end == pytest.approx(60.0)
+    crossing = ObstacleState(id="walker", shape=Circle(0.5), center=np.array([35.0, -6.0]), yaw=0.0,
+                             velocity=np.array([0.0, 1.5]), stamp=10.0)
+    start = np.array([20.0, 1.5])
+    plan = planner.plan(prepared, start, 10.0, 4.0, movers=[crossing])
+    assert plan.reached and plan.xy[0] == pytest.approx(start, abs=0.05)
+    traj = plan.trajectory
+    o = plan.field.movers[0].implicit
+    at_time = np.array([o.value(p[None, :], t)[0] for p, t in zip(traj.pos, traj.t)])
+    assert np.min(at_time) > o.c                       # never inside the walker's repulsive boundary
+    straight = np.column_stack([20.0 + 4.0 * (traj.t - 10.0), np.zeros_like(traj.t)])
+    assert np.min([o.value(p[None, :], t)[0] for p, t in zip(straight, traj.t)]) < o.c  # the straight line would be

@@ -1,0 +1,176 @@
+"""Guidance for the quadrotor: the 3-D composite field integrated by eq. (xi_r) and speed-planned.
+
+Each step evaluates the field at the point (a 3-D grid of the whole corridor would hold
+millions of cells); the rest follows the planar planner: the side rule (pass on the side -
+left, right, above or below - that leaves the path least), the direction fixed at first entry
+(flipped if it would circle backwards), the paper's near-zero rule and the reversal rule for
+discrete-time singular points, Gaussian smoothing and speed planning. Virtual obstacles are a
+planar construction and are not used in 3-D; the centripetal limit is met by speed planning.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import numpy as np
+
+from vflpcd.core.guidance.field3d import GraphPath3D, GuidanceField3D, Obstacle3D
+from vflpcd.core.guidance.grid import BACKWARDS, MAX_STREAK, REVERSAL, step_time
+from vflpcd.core.guidance.implicit import GuidanceError, ObstacleImplicit, graph_horizon
+from vflpcd.core.guidance.params import GuidanceParams
+from vflpcd.core.guidance.planner import MOVER_PASSES, GuidancePlan
+from vflpcd.core.guidance.primitives import bump
+from vflpcd.core.guidance.speed import arrival_times, plan_speed, smooth_path
+from vflpcd.core.guidance.trajectory import timed_trajectory
+from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.path import ReferencePath
+
+
+@dataclass(frozen=True)
+class Prepared3D:
+    field: GuidanceField3D
+    s0: float
+    s_end: float
+    x_end: float
+    ends_path: bool
+
+
+class GuidancePlanner3D:
+    """Plans the reference of a quadrotor on a 3-D reference path."""
+
+    def __init__(self, path: ReferencePath, params: GuidanceParams, v_desired: float, a_lat_max: float,
+                 body_radius: float, control_period: float) -> None:
+        if path.dim != 3:
+            raise GuidanceError("the 3-D guidance needs a 3-D path")
+        for name, value in (("v_desired", v_desired), ("a_lat_max", a_lat_max), ("body_radius", body_radius),
+                            ("control_period", control_period)):
+            if not (np.isfinite(value) and value > 0):
+                raise GuidanceError(f"{name} must be positive and finite, got {value}")
+        self.path, self.params = path, params
+        self.v_desired, self.a_lat_max, self.body_radius, self.dt = v_desired, a_lat_max, body_radius, control_period
+
+    def implicit(self, o: ObstacleState) -> ObstacleImplicit:
+        rep = self.body_radius + self.params.safety_margin
+        return ObstacleImplicit.around(o.id, o.shape, o.center, o.yaw, o.velocity, o.stamp,
+                                       reactive_distance=rep + self.params.reactive_margin, repulsive_distance=rep)
+
+    def obstacle(self, o: ObstacleImplicit, t: float = 0.0) -> Obstacle3D:
+        """Side e and detour plane by the rule in the module docstring, gamma so that the
+        circulation at the passing point runs along the path."""
+        center = o.center_at(t)
+        proj = self.path.project(center)
+        tangent = proj.tangent
+        left = np.cross([0.0, 0.0, 1.0], tangent)
+        if np.linalg.norm(left) < 1e-6:
+            raise GuidanceError(f"obstacle {o.name!r}: the path is vertical there; no detour plane")
+        left /= np.linalg.norm(left)
+        up = np.cross(tangent, left)
+        dirs = np.random.default_rng(0).normal(size=(2000, 3))
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        boundary = center + (dirs * ((1.0 + o.c) / o.norm(dirs @ o.Rz))[:, None])
+        best = None
+        for e in (left, -left, up, -up):
+            reach = float(np.max((boundary - proj.point) @ e))
+            if best is None or reach < best[0] - 1e-9:
+                best = (reach, e)
+        e = best[1]
+        m = np.cross(tangent, e)
+        u = e @ o.Rz
+        p_pass = center + e / o.norm(u[None, :])[0]
+        _, g = o.value_grad(p_pass[None, :], t)
+        along = float(tangent @ np.cross(g[0], m))
+        return Obstacle3D(implicit=o, side=e, normal=m, gamma=float(np.sign(along) or 1.0))
+
+    def prepare(self, s0: float, statics: Sequence[ObstacleState]) -> Prepared3D:
+        p = self.params
+        s0 = float(np.clip(s0, 0.0, self.path.length))
+        s_end = graph_horizon(self.path, s0, p.horizon)
+        ends_path = s_end >= self.path.length - 1e-9
+        graph = GraphPath3D.from_reference(self.path, s0 - min(5.0, s0), s_end)
+        pts = self.path.point_at(np.linspace(s0, s_end, 200))
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        obs = []
+        for o in statics:
+            imp = self.implicit(o)
+            if np.all(np.abs(np.clip(imp.center, lo, hi) - imp.center) <= imp.reach + 1.0):
+                obs.append(self.obstacle(imp))
+        if ends_path:
+            goal = self.path.point_at(self.path.length)[None, :]
+            for ob in obs:
+                if ob.implicit.value(goal)[0] <= ob.implicit.c:
+                    raise GuidanceError(f"obstacle {ob.implicit.name!r} covers the goal at "
+                                        f"{goal[0].round(2).tolist()} (it is inside its repulsive boundary)")
+        field = GuidanceField3D(path=graph, k_p=p.k_p, k_r=p.k_r, l1=p.l1, l2=p.l2, statics=obs)
+        x_end = float(graph.progress(self.path.point_at(s_end)[None, :])[0]) - (p.beta if ends_path else 0.0)
+        return Prepared3D(field=field, s0=s0, s_end=s_end, x_end=x_end, ends_path=ends_path)
+
+    def plan(self, prepared: Prepared3D, start: np.ndarray, t0: float, v0: float,
+             movers: Sequence[ObstacleState] = ()) -> GuidancePlan:
+        p = self.params
+        start = np.asarray(start, float)
+        if start.shape != (3,) or not np.all(np.isfinite(start)):
+            raise GuidanceError(f"start must be 3 finite numbers, got {start!r}")
+        field = prepared.field
+        if movers:
+            field = replace(field, movers=[self.obstacle(self.implicit(o), t0) for o in movers])
+        for ob in field.statics + field.movers:
+            if ob.implicit.value(start[None, :], t0)[0] <= ob.implicit.c:
+                raise GuidanceError(f"obstacle {ob.implicit.name!r} covers the start at {start.round(2).tolist()} "
+                                    "(it is inside its repulsive boundary)")
+        step_times = None
+        for _ in range(1 + (MOVER_PASSES if movers else 0)):  # moving obstacles at the last pass's times
+            raw, reached, inherited, gammas = self._integrate(
+                field, start, prepared.x_end, t0, max(v0, 0.5 * self.v_desired),
+                int(4 * (prepared.s_end - prepared.s0 + 20.0) / p.beta), step_times)
+            xyz = smooth_path(raw, p.smoothing / p.beta)
+            s, kappa, v = plan_speed(xyz, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
+                                     v_end=0.0 if (prepared.ends_path and reached) else None)
+            times = t0 + arrival_times(s, v)
+            step_times = times[np.isfinite(times)]
+        return GuidancePlan(trajectory=timed_trajectory(xyz, s, v, t0, self.dt), xy=xyz, s=s, kappa=kappa, v=v,
+                            raw=raw, reached=reached, inherited=inherited, field=field, gammas=gammas)
+
+    def _integrate(self, field: GuidanceField3D, start: np.ndarray, x_end: float, t0: float, speed: float,
+                   max_steps: int, step_times: np.ndarray | None):
+        """Eq. (xi_r) with the field evaluated at each point: (points (K, 3), reached, inherited, gammas)."""
+        p = self.params
+        obstacles = field.statics + field.movers
+        gammas: list[float | None] = [None] * len(obstacles)
+        po, pd = field.path.progress_frame()
+        x = start.copy()
+        pts, prev, inherited, streak = [x.copy()], None, 0, 0
+        for k in range(max_steps):
+            t = step_time(k, t0, p.beta, speed, step_times)
+            q = x[None, :]
+            chi_p = field.path_unit(q)[0]
+            P, V = 1.0, np.zeros(3)
+            for n, ob in enumerate(obstacles):
+                if np.linalg.norm(x - ob.implicit.center_at(t)) > ob.implicit.reach:
+                    continue
+                if gammas[n] is None:
+                    phi0 = ob.implicit.value(q, t)[0]
+                    if phi0 >= 0.0:
+                        continue
+                    _, chi0 = field.repulsive_unit(ob, ob.gamma, q, t)  # first entry: keep unless backwards
+                    gammas[n] = -ob.gamma if chi0[0] @ field.path.tangent(x) < BACKWARDS else ob.gamma
+                phi, chi = field.repulsive_unit(ob, gammas[n], q, t)
+                cup, cap = bump(phi, ob.implicit.c, field.l1, field.l2)
+                P *= cup[0]
+                V += cap[0] * chi[0]
+            chi = P * chi_p + V
+            norm = float(np.linalg.norm(chi))
+            reversal = prev is not None and chi @ prev < REVERSAL * norm and streak < MAX_STREAK
+            if norm < p.epsilon or reversal:
+                if prev is None:
+                    raise GuidanceError(f"the field vanishes at the start {x.round(2).tolist()} and there is no "
+                                        "heading to inherit")
+                u, streak, inherited = prev, streak + 1, inherited + 1
+            else:
+                u, streak = chi / norm, 0
+                prev = u
+            x = x + p.beta * u
+            pts.append(x.copy())
+            if (x - po) @ pd >= x_end:
+                return np.asarray(pts), True, inherited, tuple(gammas)
+        return np.asarray(pts), False, inherited, tuple(gammas)
