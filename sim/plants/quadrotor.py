@@ -87,7 +87,6 @@ import numpy as np
 from sim.plants.base import checked_vector
 from sim.plants.integrators import rk4_step, substeps
 from vflpcd.core.angles import wrap_angle
-from vflpcd.errors import ConfigError
 from vflpcd.paths import config_dir
 from vflpcd.tomlread import Table, load_toml
 

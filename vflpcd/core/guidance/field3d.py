@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from vflpcd.core.guidance.implicit import GuidanceError, ObstacleImplicit
+from vflpcd.core.guidance.implicit import GuidanceError, ObstacleImplicit, chord_frame
 from vflpcd.core.guidance.primitives import bump, unit
 from vflpcd.core.path import ReferencePath
 
@@ -45,12 +45,9 @@ class GraphPath3D:
 
     @classmethod
     def from_reference(cls, path: ReferencePath, s0: float, s1: float, spacing: float = 1.0) -> "GraphPath3D":
-        n = max(int(np.ceil((s1 - s0) / spacing)), 3)
-        pts = path.point_at(np.linspace(s0, s1, n + 1))
-        chord = pts[-1] - pts[0]
-        theta = float(np.arctan2(chord[1], chord[0]))
-        local = (pts - pts[0]) @ _rot_z(theta)
-        return cls(pts[0], theta, local[:, 0], local[:, 1], local[:, 2])
+        """Fit the stretch [s0, s1] of a 3-D reference path in the frame of its horizontal chord."""
+        origin, theta, local = chord_frame(path, s0, s1, spacing)
+        return cls(origin, theta, local[:, 0], local[:, 1], local[:, 2])
 
     def _eval(self, spline, deriv, x):
         xc = np.clip(x, self.x0, self.x1)

@@ -105,12 +105,8 @@ class GraphPath:
     @classmethod
     def from_reference(cls, path: ReferencePath, s0: float, s1: float, spacing: float = 1.0) -> "GraphPath":
         """Fit the stretch [s0, s1] of a 2-D reference path in the frame of its chord."""
-        n = max(int(np.ceil((s1 - s0) / spacing)), 3)
-        pts = path.point_at(np.linspace(s0, s1, n + 1))
-        chord = pts[-1] - pts[0]
-        theta = float(np.arctan2(chord[1], chord[0]))
-        local = (pts - pts[0]) @ _rot(theta)
-        return cls(pts[0], theta, local[:, 0], local[:, 1])
+        origin, theta, local = chord_frame(path, s0, s1, spacing)
+        return cls(origin, theta, local[:, 0], local[:, 1])
 
     def to_local(self, p: np.ndarray) -> np.ndarray:
         return (p - self.origin) @ self.R
@@ -144,6 +140,18 @@ class GraphPath:
         """World points of the graph at local abscissae x (K,) -> (K, 2)."""
         f, _ = self._f(np.asarray(x, float))
         return self.origin + np.column_stack([x, f]) @ self.R.T
+
+
+def chord_frame(path: ReferencePath, s0: float, s1: float, spacing: float = 1.0):
+    """Points of the stretch [s0, s1] every ~spacing m in the frame of its chord, turned about z:
+    (origin (d,), heading theta of the chord, local points (K, d))."""
+    n = max(int(np.ceil((s1 - s0) / spacing)), 3)
+    pts = path.point_at(np.linspace(s0, s1, n + 1))
+    chord = pts[-1] - pts[0]
+    theta = float(np.arctan2(chord[1], chord[0]))
+    rot = np.eye(path.dim)
+    rot[:2, :2] = _rot(theta)
+    return pts[0], theta, (pts - pts[0]) @ rot
 
 
 def graph_horizon(path: ReferencePath, s0: float, length: float, max_turn: float = np.radians(70.0)) -> float:

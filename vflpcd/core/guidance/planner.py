@@ -70,13 +70,15 @@ class GuidancePlan:
     virtual_off: tuple = ()
 
 
-class GuidancePlanner:
-    """Plans the reference for one robot on one reference path (2-D)."""
+class PlannerBase:
+    """What the planar and the 3-D planner share: checked inputs and the obstacles' implicits."""
+
+    dim = 2
 
     def __init__(self, path: ReferencePath, params: GuidanceParams, v_desired: float, a_lat_max: float,
                  body_radius: float, control_period: float) -> None:
-        if path.dim != 2:
-            raise GuidanceError("the planar guidance needs a 2-D path")
+        if path.dim != self.dim:
+            raise GuidanceError(f"{type(self).__name__} needs a {self.dim}-D path, got a {path.dim}-D one")
         for name, value in (("v_desired", v_desired), ("a_lat_max", a_lat_max), ("body_radius", body_radius),
                             ("control_period", control_period)):
             if not (np.isfinite(value) and value > 0):
@@ -85,11 +87,15 @@ class GuidancePlanner:
         self.v_desired, self.a_lat_max = v_desired, a_lat_max
         self.body_radius, self.dt = body_radius, control_period
 
-    # ------------------------------------------------------------------ obstacles
     def implicit(self, o: ObstacleState) -> ObstacleImplicit:
+        """varphi_i of an obstacle: Q at body radius + safety margin, R reactive_margin further out."""
         rep = self.body_radius + self.params.safety_margin
         return ObstacleImplicit.around(o.id, o.shape, o.center, o.yaw, o.velocity, o.stamp,
                                        reactive_distance=rep + self.params.reactive_margin, repulsive_distance=rep)
+
+
+class GuidancePlanner(PlannerBase):
+    """Plans the reference for one robot on one reference path (2-D)."""
 
     def actual_term(self, o: ObstacleImplicit, t: float = 0.0) -> ActualTerm:
         """Side (+1 left, -1 right) and gamma_i by the rule in the module docstring."""

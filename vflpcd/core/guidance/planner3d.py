@@ -18,13 +18,11 @@ import numpy as np
 from vflpcd.core.guidance.field3d import GraphPath3D, GuidanceField3D, Obstacle3D
 from vflpcd.core.guidance.grid import BACKWARDS, MAX_STREAK, REVERSAL, step_time
 from vflpcd.core.guidance.implicit import GuidanceError, ObstacleImplicit, graph_horizon
-from vflpcd.core.guidance.params import GuidanceParams
-from vflpcd.core.guidance.planner import MOVER_PASSES, GuidancePlan
+from vflpcd.core.guidance.planner import MOVER_PASSES, GuidancePlan, PlannerBase
 from vflpcd.core.guidance.primitives import bump
 from vflpcd.core.guidance.speed import arrival_times, plan_speed, smooth_path
 from vflpcd.core.guidance.trajectory import timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
-from vflpcd.core.path import ReferencePath
 
 
 @dataclass(frozen=True)
@@ -36,24 +34,10 @@ class Prepared3D:
     ends_path: bool
 
 
-class GuidancePlanner3D:
+class GuidancePlanner3D(PlannerBase):
     """Plans the reference of a quadrotor on a 3-D reference path."""
 
-    def __init__(self, path: ReferencePath, params: GuidanceParams, v_desired: float, a_lat_max: float,
-                 body_radius: float, control_period: float) -> None:
-        if path.dim != 3:
-            raise GuidanceError("the 3-D guidance needs a 3-D path")
-        for name, value in (("v_desired", v_desired), ("a_lat_max", a_lat_max), ("body_radius", body_radius),
-                            ("control_period", control_period)):
-            if not (np.isfinite(value) and value > 0):
-                raise GuidanceError(f"{name} must be positive and finite, got {value}")
-        self.path, self.params = path, params
-        self.v_desired, self.a_lat_max, self.body_radius, self.dt = v_desired, a_lat_max, body_radius, control_period
-
-    def implicit(self, o: ObstacleState) -> ObstacleImplicit:
-        rep = self.body_radius + self.params.safety_margin
-        return ObstacleImplicit.around(o.id, o.shape, o.center, o.yaw, o.velocity, o.stamp,
-                                       reactive_distance=rep + self.params.reactive_margin, repulsive_distance=rep)
+    dim = 3
 
     def obstacle(self, o: ObstacleImplicit, t: float = 0.0) -> Obstacle3D:
         """Side e and detour plane by the rule in the module docstring, gamma so that the

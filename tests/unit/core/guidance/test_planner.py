@@ -202,3 +202,30 @@ def test_replanning_from_mid_path_around_a_crossing_obstacle(params):
     assert np.min(at_time) > o.c                       # never inside the walker's repulsive boundary
     straight = np.column_stack([20.0 + 4.0 * (traj.t - 10.0), np.zeros_like(traj.t)])
     assert np.min([o.value(p[None, :], t)[0] for p, t in zip(straight, traj.t)]) < o.c  # the straight line would be
+
+
+def test_manual_virtual_obstacle_from_a_scenario_overrides_the_automatic_one(params, tmp_path):
+    text = (config_dir() / "scenarios" / "dense_static.toml").read_text() + """
+[guidance]
+virtual = "auto"
+
+[[guidance.virtual_obstacles]]
+center = [5.0, -6.0]
+radius = 5.0
+c = -0.2
+parent = "c1"
+gamma = 1
+"""
+    f = tmp_path / "manual.toml"
+    f.write_text(text)
+    s = load_scenario(f)
+    assert s.guidance.virtual == "auto" and len(s.guidance.virtual_obstacles) == 1
+    planner = GuidancePlanner(s.path, s.guidance, s.v_desired, s.a_lat_max, s.footprint.radius, s.control_period)
+    prepared = planner.prepare(0.0, [static(o.id, o.shape, *o.center, o.yaw) for o in s.obstacles])
+    (v,) = prepared.field.virtuals
+    assert v.implicit.center == pytest.approx([5.0, -6.0]) and v.implicit.c == -0.2 and v.gamma == 1.0
+    assert v.parent.name == "c1"
+    bad = GuidanceParams.from_table(Table({"virtual_obstacles": [
+        {"center": [5.0, -6.0], "radius": 5.0, "c": -0.2, "parent": "nobody"}]}, "s.toml", "guidance"), s.guidance)
+    with pytest.raises(GuidanceError, match="parent 'nobody'"):
+        GuidancePlanner(s.path, bad, 3.0, 2.0, 1.25, 0.05).prepare(0.0, [static("c1", Circle(1.0), 8.0, 1.2)])
