@@ -5,14 +5,16 @@ pose to the end of the reference path, around the scenario's obstacles. Reported
 route length L_p, computation time t_cal (median and p99 over repeated runs), the smallest
 clearance between the car's exact outline, posed along the planned path with the path's heading,
 and every obstacle's physical boundary, and SD (safe distance kept: that clearance >= the safe
-distance). The guidance also reports the grid precompute time, measured separately from t_cal.
+distance) and the peak curvature of the path. The guidance runs twice, with and without the
+virtual obstacles of the kinodynamic field, and also reports the grid precompute time, measured
+separately from t_cal.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +23,7 @@ from sim.baselines.hybrid_astar import HybridAStarParams, plan_scenario
 from sim.obstacle_world import ObstacleWorld
 from sim.scenarios import Scenario
 from vflpcd.core.guidance.planner import GuidancePlanner, Prepared
+from vflpcd.core.guidance.speed import menger_curvature
 
 
 @dataclass
@@ -47,8 +50,11 @@ def path_clearance(scenario: Scenario, xy: np.ndarray) -> float:
                      for o in scenario.obstacles for p, h in zip(xy, heading)))
 
 
-def run_guidance(scenario: Scenario, repeat: int, safe_distance: float) -> tuple[PlannerRow, Prepared]:
-    planner = GuidancePlanner(scenario.path, scenario.guidance, scenario.v_desired, scenario.a_lat_max,
+def run_guidance(scenario: Scenario, repeat: int, safe_distance: float,
+                 virtual: str | None = None) -> tuple[PlannerRow, Prepared]:
+    """The guidance with the scenario's parameters (``virtual`` overrides their virtual-obstacle mode)."""
+    params = scenario.guidance if virtual is None else replace(scenario.guidance, virtual=virtual)
+    planner = GuidancePlanner(scenario.path, params, scenario.v_desired, scenario.a_lat_max,
                               scenario.footprint.radius, scenario.control_period)
     obstacles = ObstacleWorld(scenario.obstacles).snapshot(0.0)
     t_pre = []
@@ -66,10 +72,11 @@ def run_guidance(scenario: Scenario, repeat: int, safe_distance: float) -> tuple
         g.data.shape[0] * g.data.shape[1] for g in prepared.grid.obstacles)
     extra = {"reached_goal": plan.reached, "grid_precompute_median": float(np.median(t_pre)), "grid_cells": cells,
              "virtual_obstacles": len(prepared.field.virtuals), "inherited_steps": plan.inherited,
-             "duration": plan.trajectory.duration,
+             "duration": plan.trajectory.duration, "peak_curvature": float(np.max(plan.kappa)),
              "max_v2_kappa_over_a_max": float(np.max(plan.v ** 2 * plan.kappa) / scenario.a_lat_max)}
     length = float(np.sum(np.linalg.norm(np.diff(plan.xy, axis=0), axis=1)))
-    return PlannerRow("VF-LPC guidance", plan.xy, length, t_cal, clearance,
+    name = "VF-LPC guidance" + (" (virtual)" if params.virtual == "auto" else "")
+    return PlannerRow(name, plan.xy, length, t_cal, clearance,
                       bool(plan.reached and clearance >= safe_distance), extra), prepared
 
 
@@ -84,18 +91,20 @@ def run_hybrid_astar(scenario: Scenario, repeat: int, safe_distance: float) -> P
     clearance = path_clearance(scenario, xy) if result.success else float("nan")
     return PlannerRow("Hybrid A*", xy, result.length if result.success else float("nan"), t_cal, clearance,
                       bool(result.success and clearance >= safe_distance),
-                      {"success": result.success, "expansions": result.expansions, "reason": result.reason})
+                      {"success": result.success, "expansions": result.expansions, "reason": result.reason,
+                       "peak_curvature": float(np.max(menger_curvature(xy))) if len(xy) > 2 else float("nan")})
 
 
 def table(rows: list[PlannerRow], safe_distance: float) -> str:
-    lines = [f"{'metric':<26}" + "".join(f"{r.name:>18}" for r in rows)]
+    lines = [f"{'metric':<26}" + "".join(f"{r.name:>28}" for r in rows)]
     fmt = [("L_p (m)", lambda r: f"{r.length:.2f}"),
            ("t_cal median (s)", lambda r: f"{np.median(r.t_cal):.4f}"),
            ("t_cal p99 (s)", lambda r: f"{np.percentile(r.t_cal, 99):.4f}"),
            (f"SD (clearance >= {safe_distance:g} m)", lambda r: "yes" if r.sd else "no"),
-           ("min clearance (m)", lambda r: f"{r.min_clearance:.3f}")]
+           ("min clearance (m)", lambda r: f"{r.min_clearance:.3f}"),
+           ("peak curvature (1/m)", lambda r: f"{r.extra['peak_curvature']:.3f}")]
     for label, f in fmt:
-        lines.append(f"{label:<26}" + "".join(f"{f(r):>18}" for r in rows))
+        lines.append(f"{label:<26}" + "".join(f"{f(r):>28}" for r in rows))
     return "\n".join(lines)
 
 
@@ -121,7 +130,7 @@ def plot(scenario: Scenario, rows: list[PlannerRow], prepared: Prepared, out: Pa
             b = im.center + dirs * (1.0 + level) * im.axes[0]
             ax.plot(b[:, 0], b[:, 1], color="tab:blue", ls="--", lw=0.5)
     ax.plot(scenario.path.points[:, 0], scenario.path.points[:, 1], "k:", lw=0.8, label="reference path")
-    for r, color in zip(rows, ("tab:purple", "tab:orange")):
+    for r, color in zip(rows, ("tab:purple", "tab:green", "tab:orange")):
         if len(r.xy):
             ax.plot(r.xy[:, 0], r.xy[:, 1], color=color, lw=1.6,
                     label=f"{r.name}: {r.length:.2f} m, {np.median(r.t_cal) * 1e3:.1f} ms, clearance {r.min_clearance:.2f} m")
@@ -139,8 +148,10 @@ def bench_guidance(scenario: Scenario, out: Path, repeat: int = 20, astar_repeat
                    safe_distance: float = 0.0) -> dict:
     """Run both planners, print the table, write ``out/bench_guidance.json`` and ``.png``."""
     gvf, prepared = run_guidance(scenario, repeat, safe_distance)
+    other = "auto" if scenario.guidance.virtual == "off" else "off"
+    gvf_other, _ = run_guidance(scenario, repeat, safe_distance, virtual=other)
     astar = run_hybrid_astar(scenario, astar_repeat, safe_distance)
-    rows = [gvf, astar]
+    rows = [gvf, gvf_other, astar]
     print(table(rows, safe_distance))
     print(f"grid precompute (median of 3): {gvf.extra['grid_precompute_median']:.3f} s for "
           f"{gvf.extra['grid_cells']} cells; speed-up of t_cal over Hybrid A*: "

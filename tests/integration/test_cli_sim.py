@@ -40,10 +40,12 @@ def test_bench_guidance_prints_the_planning_table_and_writes_json_and_png(tmp_pa
     proc = subprocess.run(VFLPCD + ["bench", "guidance", "--repeat", "3", "--astar-repeat", "1", "--out", str(tmp_path)],
                           capture_output=True, text=True, timeout=300, env={**os.environ, "MPLBACKEND": "Agg"})
     assert proc.returncode == 0, proc.stderr
-    for label in ("L_p (m)", "t_cal median (s)", "SD (clearance >= 0 m)", "min clearance (m)", "grid precompute"):
+    for label in ("L_p (m)", "t_cal median (s)", "SD (clearance >= 0 m)", "min clearance (m)", "grid precompute",
+                  "peak curvature"):
         assert label in proc.stdout
     doc = json.loads((tmp_path / "bench_guidance.json").read_text())
     gvf, astar = doc["planners"]["VF-LPC guidance"], doc["planners"]["Hybrid A*"]
+    assert doc["planners"]["VF-LPC guidance (virtual)"]["virtual_obstacles"] > 0
     assert gvf["reached_goal"] and astar["success"]
     assert gvf["t_cal_runs"] == 3 and gvf["grid_precompute_median"] > 0
     assert gvf["max_v2_kappa_over_a_max"] <= 1.01
