@@ -13,11 +13,6 @@ Direction of each obstacle: the planner's side rule (the term's gamma_i), flippe
 the trajectory first enters the reactive region, if its circulation there would run against the
 path's direction of travel (cos < -0.3). An obstacle entered from the side opposite to the one
 planned is thus never circled backwards.
-
-Discrete-time singular points: besides the paper's rule (|chi_c| < epsilon inherits the previous
-direction), a direction that would reverse the motion within one step (cos < -0.5 with the
-previous one) means the trajectory straddles a singular point between two cells; it inherits
-the previous direction too, for at most MAX_STREAK steps in a row.
 """
 
 from __future__ import annotations
@@ -32,8 +27,6 @@ from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.guidance.primitives import bump, guiding, unit
 
 BACKWARDS = -0.3  # cos between the planned circulation and the path tangent that flips gamma_i at entry
-REVERSAL = -0.5  # cos between successive directions that marks a singular point between cells
-MAX_STREAK = 3  # at most this many reversals in a row are overridden (a true turn-back then proceeds)
 
 
 @dataclass(frozen=True)
@@ -140,7 +133,6 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
     po, pd = field.path.progress_frame()  # progress = (xi - po) . pd
     xy = [(x, y)]
     inherited = 0
-    streak = 0  # consecutive inherited steps
     reached = False
     for k in range(max_steps):
         fi, fj = (x - ox) * inv_h + 0.5, (y - oy) * inv_h + 0.5  # nearest cell: floor(index + 0.5)
@@ -204,15 +196,12 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
             Vx, Vy = Vx + (1.0 - s_i) * kx / kn, Vy + (1.0 - s_i) * ky / kn
         cx, cy = P * cpx + Vx, P * cpy + Vy
         norm = (cx * cx + cy * cy) ** 0.5
-        reversal = prev is not None and (cx * prev[0] + cy * prev[1]) < REVERSAL * norm and streak < MAX_STREAK
-        if norm < epsilon or reversal:
-            streak += 1
+        if norm < epsilon:
             if prev is None:
                 raise GuidanceError(f"the field vanishes at the start ({x:.2f}, {y:.2f}) and there is no heading to inherit")
             ux, uy = prev
             inherited += 1
         else:
-            streak = 0
             ux, uy = cx / norm, cy / norm
             prev = (ux, uy)
         x, y = x + beta * ux, y + beta * uy

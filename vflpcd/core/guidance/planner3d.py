@@ -3,8 +3,8 @@
 Each step evaluates the field at the point (a 3-D grid of the whole corridor would hold
 millions of cells); the rest follows the planar planner: the side rule (pass on the side -
 left, right, above or below - that leaves the path least), the direction fixed at first entry
-(flipped if it would circle backwards), the paper's near-zero rule and the reversal rule for
-discrete-time singular points, Gaussian smoothing and speed planning. Virtual obstacles are a
+(flipped if it would circle backwards), the paper's near-zero rule, Gaussian smoothing and speed
+planning. Virtual obstacles are a
 planar construction and are not used in 3-D; the centripetal limit is met by speed planning.
 """
 
@@ -16,7 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from vflpcd.core.guidance.field3d import GraphPath3D, GuidanceField3D, Obstacle3D
-from vflpcd.core.guidance.grid import BACKWARDS, MAX_STREAK, REVERSAL, step_time
+from vflpcd.core.guidance.grid import BACKWARDS, step_time
 from vflpcd.core.guidance.implicit import GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.planner import MOVER_PASSES, GuidancePlan, PlannerBase
 from vflpcd.core.guidance.primitives import bump
@@ -123,7 +123,7 @@ class GuidancePlanner3D(PlannerBase):
         gammas: list[float | None] = [None] * len(obstacles)
         po, pd = field.path.progress_frame()
         x = start.copy()
-        pts, prev, inherited, streak = [x.copy()], None, 0, 0
+        pts, prev, inherited = [x.copy()], None, 0
         for k in range(max_steps):
             t = step_time(k, t0, p.beta, speed, step_times)
             q = x[None, :]
@@ -144,14 +144,13 @@ class GuidancePlanner3D(PlannerBase):
                 V += cap[0] * chi[0]
             chi = P * chi_p + V
             norm = float(np.linalg.norm(chi))
-            reversal = prev is not None and chi @ prev < REVERSAL * norm and streak < MAX_STREAK
-            if norm < p.epsilon or reversal:
+            if norm < p.epsilon:  # the paper's rule at singular points
                 if prev is None:
                     raise GuidanceError(f"the field vanishes at the start {x.round(2).tolist()} and there is no "
                                         "heading to inherit")
-                u, streak, inherited = prev, streak + 1, inherited + 1
+                u, inherited = prev, inherited + 1
             else:
-                u, streak = chi / norm, 0
+                u = chi / norm
                 prev = u
             x = x + p.beta * u
             pts.append(x.copy())
