@@ -93,6 +93,26 @@ class PlannerBase:
         return ObstacleImplicit.around(o.id, o.shape, o.center, o.yaw, o.velocity, o.stamp,
                                        reactive_distance=rep + self.params.reactive_margin, repulsive_distance=rep)
 
+    def safe_smooth(self, raw: np.ndarray, terms, t0: float, times: np.ndarray | None) -> np.ndarray:
+        """Smooth raw (K, d) with the configured std, halving it (down to none) while the smoothed
+        points would cut into a repulsive boundary (moving obstacles at the points' times)."""
+        p = self.params
+        k = np.arange(len(raw))
+        t = t0 + k * p.beta / self.v_desired if times is None else np.interp(k, np.arange(len(times)), times)
+        sigma = p.smoothing / p.beta
+        while True:
+            xy = smooth_path(raw, sigma) if sigma >= 0.5 else raw
+            if sigma < 0.5 or all(np.all(self._values(term.implicit, xy, t) > term.implicit.c) for term in terms):
+                return xy
+            sigma /= 2.0
+
+    @staticmethod
+    def _values(o: ObstacleImplicit, xy: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """varphi at points xy (K, d) reached at times t (K,) (one evaluation for a static obstacle)."""
+        if not np.any(o.velocity):
+            return o.value(xy)
+        return np.array([o.value(q[None, :], tk)[0] for q, tk in zip(xy, t)])
+
 
 class GuidancePlanner(PlannerBase):
     """Plans the reference for one robot on one reference path (2-D)."""
@@ -211,10 +231,12 @@ class GuidancePlanner(PlannerBase):
         res: Integration = integrate(field, prepared.grid, start, prepared.x_end, p.beta, p.epsilon,
                                      max_steps=int(4 * (length + 20.0) / p.beta), t0=t0,
                                      speed=max(v0, 0.5 * self.v_desired), heading=heading, step_times=step_times)
-        xy = smooth_path(res.xy, p.smoothing / p.beta)
+        times = step_times if step_times is not None and len(step_times) else None
+        xy = self.safe_smooth(res.xy, field.statics + field.movers, t0, times)
         s, kappa, v = plan_speed(xy, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
                                  v_end=0.0 if (prepared.ends_path and res.reached) else None)
         return res, xy, s, kappa, v
+
 
     def plan(self, prepared: Prepared, start: np.ndarray, t0: float, v0: float,
              movers: Sequence[ObstacleState] = (), heading: float | None = None) -> GuidancePlan:

@@ -20,7 +20,7 @@ from vflpcd.core.guidance.grid import BACKWARDS, step_time
 from vflpcd.core.guidance.implicit import GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.planner import MOVER_PASSES, GuidancePlan, PlannerBase
 from vflpcd.core.guidance.primitives import bump
-from vflpcd.core.guidance.speed import arrival_times, plan_speed, smooth_path
+from vflpcd.core.guidance.speed import arrival_times, plan_speed
 from vflpcd.core.guidance.trajectory import timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
 
@@ -107,7 +107,7 @@ class GuidancePlanner3D(PlannerBase):
             raw, reached, inherited, gammas = self._integrate(
                 field, start, prepared.x_end, t0, max(v0, 0.5 * self.v_desired),
                 int(4 * (prepared.s_end - prepared.s0 + 20.0) / p.beta), step_times)
-            xyz = smooth_path(raw, p.smoothing / p.beta)
+            xyz = self.safe_smooth(raw, field.statics + field.movers, t0, step_times)
             s, kappa, v = plan_speed(xyz, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
                                      v_end=0.0 if (prepared.ends_path and reached) else None)
             times = t0 + arrival_times(s, v)

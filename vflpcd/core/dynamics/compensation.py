@@ -1,0 +1,178 @@
+"""GP compensation of the Koopman model error, paper section III-B ("Online Compensation").
+
+Nominal latent model (eq. latent_vehicle_dynamics): Upsilon_{k+1} = A Upsilon_k + B u_k.
+GP input z = [Upsilon[z_index], u] (n_z = len(z_index) + n_u), GP output d (n_y,):
+
+    d(z_k) = B_d^+ (Upsilon_{k+1} - A Upsilon_k - B u_k)                      (error_model)
+    Upsilon_{k+1} = A Upsilon_k + B u_k + B_d m(z_k)                          (Dynamics_for_planning)
+    A_d = A + B_d dm/dUpsilon,   B_d,k = B + B_d dm/du                        (JocabianMatrices)
+
+``OnlineCompensator`` owns an ALD dictionary (the inducing inputs of the next refit), a FIFO
+buffer of recent finite samples (the training set of the next refit) and the current
+immutable ``FITCGP``. ``observe`` is the cheap per-step call (O(n_y m^2)): every finite
+sample is folded into the current GP with ``add_sample`` and offered to the ALD dictionary.
+``refit`` is the worker call; it builds a new GP and hands it over by one assignment.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from typing import NamedTuple
+
+import numpy as np
+
+from vflpcd.core.dynamics.ald import ALDDictionary
+from vflpcd.core.dynamics.sparse_gp import DEFAULT_BOUNDS, FITCGP, SEHyper, refit
+
+
+class TrainingPairs(NamedTuple):
+    """GP training pairs: z (N', n_z), d (N', n_y), number of non-finite samples dropped,
+    keep (N,) mask of the input samples that were kept."""
+
+    z: np.ndarray
+    d: np.ndarray
+    dropped: int
+    keep: np.ndarray
+
+
+class KoopmanCompensation:
+    """Model-error compensation around Upsilon_{k+1} = A Upsilon_k + B u_k.
+
+    A (n_K, n_K), B (n_K, n_u), B_d (n_K, n_y) (e.g. [0_3 I_3 0]^T), z_index (n_zx,) indices
+    of Upsilon entering the GP input z = [Upsilon[z_index], u].
+    """
+
+    def __init__(self, A: np.ndarray, B: np.ndarray, B_d: np.ndarray, z_index) -> None:
+        self.A = np.array(A, dtype=float)
+        self.B = np.array(B, dtype=float)
+        self.B_d = np.array(B_d, dtype=float)
+        self.z_index = np.array(z_index, dtype=np.int64).reshape(-1)
+        n_K = self.A.shape[0]
+        if (self.A.shape != (n_K, n_K) or self.B.ndim != 2 or self.B.shape[0] != n_K
+                or self.B_d.ndim != 2 or self.B_d.shape[0] != n_K
+                or np.any(self.z_index < 0) or np.any(self.z_index >= n_K)):
+            raise ValueError("inconsistent shapes of A, B, B_d or z_index")
+        self.n_K, self.n_u, self.n_y = n_K, self.B.shape[1], self.B_d.shape[1]
+        self.n_z = self.z_index.size + self.n_u
+        self.B_d_pinv = np.linalg.pinv(self.B_d)              # (n_y, n_K)
+
+    def gp_input(self, U: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """z = [U[..., z_index], u]: U (..., n_K), u (..., n_u) -> (..., n_z)."""
+        U, u = np.asarray(U, dtype=float), np.asarray(u, dtype=float)
+        return np.concatenate([U[..., self.z_index], u], axis=-1)
+
+    def nominal(self, U: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """A U + B u for U (..., n_K), u (..., n_u) -> (..., n_K)."""
+        return np.asarray(U, dtype=float) @ self.A.T + np.asarray(u, dtype=float) @ self.B.T
+
+    def residual_target(self, U_k: np.ndarray, u_k: np.ndarray, U_next: np.ndarray) -> TrainingPairs:
+        """Eq. (error_model) over N samples: U_k (N, n_K), u_k (N, n_u), U_next (N, n_K)
+        (a single sample may be 1-D). Samples with any non-finite entry are dropped and
+        counted; only finite pairs are returned."""
+        U_k, u_k, U_next = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (U_k, u_k, U_next))
+        keep = np.all(np.isfinite(np.hstack([U_k, u_k, U_next])), axis=1)
+        U_k, u_k, U_next = U_k[keep], u_k[keep], U_next[keep]
+        z = self.gp_input(U_k, u_k)
+        d = (U_next - self.nominal(U_k, u_k)) @ self.B_d_pinv.T          # (error_model)
+        ok = np.all(np.isfinite(d), axis=1)                              # overflow
+        keep[np.flatnonzero(keep)[~ok]] = False
+        return TrainingPairs(z[ok], d[ok], int((~keep).sum()), keep)
+
+    def predict(self, U: np.ndarray, u: np.ndarray, gp: FITCGP | None) -> np.ndarray:
+        """Eq. (Dynamics_for_planning): A U + B u + B_d m(z). U (n_K,) or (N, n_K), u (n_u,)
+        or (N, n_u) -> same leading shape as U. ``gp=None`` gives the nominal model."""
+        nom = self.nominal(U, u)
+        if gp is None:
+            return nom
+        z = self.gp_input(U, u)
+        mean = gp.mean(z) if z.ndim == 1 else gp.means(z)
+        return nom + mean @ self.B_d.T
+
+    def jacobians(self, U_r: np.ndarray, u_r: np.ndarray, gp: FITCGP | None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """Eq. (JocabianMatrices) at (U_r (n_K,), u_r (n_u,)) -> A_d (n_K, n_K), B_d,k (n_K, n_u),
+        with dm/dUpsilon from dm/dz by the chain rule through z_index."""
+        if gp is None:
+            return self.A.copy(), self.B.copy()
+        _, J = gp.mean_jacobian(self.gp_input(U_r, u_r))                  # (n_y, n_z)
+        nx = self.z_index.size
+        dm_dU = np.zeros((self.n_y, self.n_K))
+        np.add.at(dm_dU, (slice(None), self.z_index), J[:, :nx])
+        return self.A + self.B_d @ dm_dU, self.B + self.B_d @ J[:, nx:]
+
+
+class OnlineCompensator:
+    """ALD dictionary + FIFO training buffer + current immutable FITC GP.
+
+    comp: the compensation structure; hyp0: initial hyper-parameters (n_y outputs);
+    nu, m_max: ALD threshold and dictionary cap (= number of inducing points); n_max: training
+    buffer length; ald_ell: ALD kernel length scale (default min(hyp0.ell); ALD uses sf2 = 1,
+    so nu is relative). Refit options (optimise, bounds, jitter, max_cond) go to ``refit``.
+    ``observe`` and ``refit`` may run on different threads: the hand-over is one assignment
+    under a lock, and samples observed during a refit are replayed into the new model.
+    """
+
+    def __init__(self, comp: KoopmanCompensation, hyp0: SEHyper, *, nu: float = 1e-2,
+                 m_max: int = 64, n_max: int = 300, ald_ell: float | None = None,
+                 optimise: bool = True, bounds=DEFAULT_BOUNDS, jitter: float = 1e-8,
+                 max_cond: float = 1e12) -> None:
+        if hyp0.n_y != comp.n_y:
+            raise ValueError(f"hyp0 has {hyp0.n_y} outputs, B_d has {comp.n_y}")
+        self.comp, self.hyp0 = comp, hyp0
+        ell = float(np.min(hyp0.ell)) if ald_ell is None else float(ald_ell)
+        self.dictionary = ALDDictionary(comp.n_z, nu, m_max, 1.0, ell)
+        self._buffer: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=n_max)
+        self._seq = 0
+        self._model: FITCGP | None = None
+        self._lock = threading.Lock()
+        self._refit_kw = dict(optimise=optimise, bounds=bounds, jitter=jitter, max_cond=max_cond)
+        self.dropped = 0          # non-finite samples never fed to the GP
+
+    @property
+    def model(self) -> FITCGP | None:
+        """The current immutable GP, or None before the first successful refit."""
+        return self._model
+
+    @property
+    def n_buffered(self) -> int:
+        return len(self._buffer)
+
+    def observe(self, U_k: np.ndarray, u_k: np.ndarray, U_next: np.ndarray) -> bool:
+        """One transition U_k (n_K,), u_k (n_u,), U_next (n_K,). Returns False (and counts it
+        in ``dropped``) when non-finite; otherwise buffers it, offers z to the ALD dictionary
+        and folds it into the current GP (O(n_y m^2))."""
+        pairs = self.comp.residual_target(U_k, u_k, U_next)
+        if pairs.z.shape[0] != 1:
+            self.dropped += pairs.dropped
+            return False
+        z, d = pairs.z[0], pairs.d[0]
+        with self._lock:
+            self._seq += 1
+            self._buffer.append((self._seq, z, d))
+            self.dictionary.consider(z, tag=self._seq)
+            if self._model is not None:
+                self._model = self._model.add_sample(z, d)
+        return True
+
+    def refit(self) -> FITCGP | None:
+        """Worker call: hyper-parameters + FITC posterior on the buffer with the dictionary as
+        inducing inputs. On an ill-conditioned result the previous model is kept (logged by
+        ``sparse_gp.refit``). Returns the model now current."""
+        with self._lock:
+            if not self._buffer or self.dictionary.m == 0:
+                return self._model
+            seq0 = self._seq
+            Z = np.array([s[1] for s in self._buffer])
+            Y = np.array([s[2] for s in self._buffer])
+            Zm = self.dictionary.points
+            prev = self._model
+        hyp0 = prev.hyp if prev is not None else self.hyp0
+        new = refit(prev, Zm, Z, Y, hyp0, **self._refit_kw)
+        with self._lock:
+            if new is not prev and new is not None:
+                for seq, z, d in self._buffer:           # samples that arrived meanwhile
+                    if seq > seq0:
+                        new = new.add_sample(z, d)
+                self._model = new
+            return self._model

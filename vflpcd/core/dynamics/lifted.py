@@ -1,0 +1,247 @@
+"""Lifted linear (Koopman) models and the window-frame pose convention they share.
+
+Model (paper eq. for the latent dynamics)
+-----------------------------------------
+A :class:`LiftedLinearModel` maps a state x (n_x,) to the lifted state
+Upsilon(x) = [x, rho(x)] (n_K,) -- the first n_x entries are x itself, in SI units -- and
+predicts with the linear time-invariant system
+
+    Upsilon_{k+1} = A Upsilon_k + B u_k,       A: (n_K, n_K), B: (n_K, n_u),
+
+reading the predicted state as the first n_x entries. ``rollout`` lifts once and iterates.
+The DMDc/EDMDc baselines (``vflpcd.training.dmdc``) and the deep Koopman model share it.
+
+Normalisation lives in the model: per-channel means and standard deviations of the states
+(``x_mean``, ``x_std``, (n_x,)) and controls (``u_mean``, ``u_std``, (n_u,)) that it was
+fitted with. Models fitted in normalised coordinates x_n = (x - x_mean) / x_std,
+u_n = (u - u_mean) / u_std on the lifted state [x_n, rho(x), 1] (the last observable the
+constant 1) are turned into the physical A, B above by :func:`to_physical`; the constant
+observable carries the affine offsets of the normalisation, so the map stays exactly linear.
+
+Window frame (the pose convention)
+----------------------------------
+A model never sees absolute world poses. Every prediction window (H + 1 consecutive
+states, the first one being the initial state of the rollout) is expressed relative to the
+window's first pose:
+
+* ground vehicle (state names contain X, Y and a heading ``yaw`` or ``psi``): with the first
+  pose (X_0, Y_0, psi_0), X' = cos psi_0 (X - X_0) + sin psi_0 (Y - Y_0),
+  Y' = -sin psi_0 (X - X_0) + cos psi_0 (Y - Y_0), psi' = unwrap(psi) - psi_0, so every window
+  starts at X' = Y' = psi' = 0 with the vehicle heading along +X'. Body-frame channels
+  (vx, vy, yaw rate, ...) are unchanged. The heading is unwrapped along the window first
+  (np.unwrap), so a logged wrap inside a window does not show as a 2 pi jump;
+* quadrotor / point mass (names contain X, Y and possibly Z but no heading): the position
+  is taken relative to the window's first position; velocities (world frame) are unchanged;
+* anything else: no pose, the window frame is the identity.
+
+:func:`to_window_frame` and :func:`from_window_frame` convert; they take the window's
+first *world* state as the origin, so ``from_window_frame(to_window_frame(w), w[..., 0, :])``
+gives back w (with the heading unwrapped along the window).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+HEADING_NAMES = ("yaw", "psi")
+POSITION_NAMES = ("X", "Y", "Z")
+
+
+@dataclass(frozen=True)
+class PoseLayout:
+    """Where the pose lives in a state vector.
+
+    kind: "planar" (X, Y, heading), "position" (X, Y[, Z]) or "none"; position: column
+    indices of the position channels; heading: column index of the heading, or None."""
+
+    kind: str
+    position: tuple[int, ...]
+    heading: int | None
+
+    @classmethod
+    def of(cls, state_names: Sequence[str]) -> "PoseLayout":
+        names = list(state_names)
+        pos = tuple(names.index(n) for n in POSITION_NAMES if n in names)
+        head = next((names.index(n) for n in HEADING_NAMES if n in names), None)
+        if "X" in names and "Y" in names and head is not None:
+            return cls("planar", (names.index("X"), names.index("Y")), head)
+        if "X" in names and "Y" in names:
+            return cls("position", pos, None)
+        return cls("none", (), None)
+
+
+def to_window_frame(states: np.ndarray, state_names: Sequence[str]) -> np.ndarray:
+    """World-frame windows (..., T, n_x) -> the same windows in their first pose's frame (..., T, n_x).
+
+    ``state_names`` (n_x,) name the columns and decide the convention (module docstring)."""
+    w = np.array(states, dtype=np.float64)  # copy
+    lay = PoseLayout.of(state_names)
+    if w.ndim < 2 or w.shape[-1] != len(state_names):
+        raise ValueError(f"expected windows of shape (..., T, {len(state_names)}), got {w.shape}")
+    if lay.kind == "none":
+        return w
+    p = list(lay.position)
+    dp = w[..., p] - w[..., :1, p]
+    if lay.kind == "position":
+        w[..., p] = dp
+        return w
+    psi = np.unwrap(w[..., lay.heading], axis=-1)
+    psi0 = psi[..., :1]
+    c, s = np.cos(psi0), np.sin(psi0)
+    w[..., p[0]] = c * dp[..., 0] + s * dp[..., 1]
+    w[..., p[1]] = -s * dp[..., 0] + c * dp[..., 1]
+    w[..., lay.heading] = psi - psi0
+    return w
+
+
+def from_window_frame(window_states: np.ndarray, state_names: Sequence[str], origin: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`to_window_frame`: window-frame states (..., T, n_x) and the window's first
+    world state ``origin`` (..., n_x) -> world-frame states (..., T, n_x) (heading unwrapped)."""
+    w = np.array(window_states, dtype=np.float64)
+    o = np.asarray(origin, dtype=np.float64)[..., None, :]
+    lay = PoseLayout.of(state_names)
+    if lay.kind == "none":
+        return w
+    p = list(lay.position)
+    if lay.kind == "position":
+        w[..., p] = w[..., p] + o[..., p]
+        return w
+    psi0 = o[..., lay.heading]
+    c, s = np.cos(psi0), np.sin(psi0)
+    x, y = w[..., p[0]].copy(), w[..., p[1]].copy()
+    w[..., p[0]] = o[..., p[0]] + c * x - s * y
+    w[..., p[1]] = o[..., p[1]] + s * x + c * y
+    w[..., lay.heading] = w[..., lay.heading] + psi0
+    return w
+
+
+def to_physical(A_n: np.ndarray, B_n: np.ndarray, x_mean: np.ndarray, x_std: np.ndarray,
+                u_mean: np.ndarray, u_std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Physical (A, B) from a model fitted on Z_n = [x_n, phi, 1] (n_K,) with normalised controls.
+
+    A_n: (n_K, n_K), B_n: (n_K, n_u); the last lifted entry must be the constant 1 (its row of
+    A_n is e_last, of B_n zero). With U = [x, phi, 1] = P Z_n, P = [[diag(x_std), 0, x_mean],
+    [0, I, 0], [0, 0, 1]], and u_n = (u - u_mean) / u_std:
+    A = P (A_n - B_n diag(1/u_std) u_mean e_last^T) P^-1, B = P B_n diag(1/u_std)."""
+    A_n = np.asarray(A_n, dtype=np.float64)
+    B_n = np.asarray(B_n, dtype=np.float64)
+    n_K, n_x = A_n.shape[0], len(x_mean)
+    x_std = np.asarray(x_std, dtype=np.float64)
+    x_mean = np.asarray(x_mean, dtype=np.float64)
+    inv_us = 1.0 / np.asarray(u_std, dtype=np.float64)
+    B_u = B_n * inv_us[None, :]
+    A_eff = A_n.copy()
+    A_eff[:, -1] -= B_u @ np.asarray(u_mean, dtype=np.float64)
+    P = np.eye(n_K)
+    P[:n_x, :n_x] = np.diag(x_std)
+    P[:n_x, -1] = x_mean
+    P_inv = np.eye(n_K)
+    P_inv[:n_x, :n_x] = np.diag(1.0 / x_std)
+    P_inv[:n_x, -1] = -x_mean / x_std
+    return P @ A_eff @ P_inv, P @ B_u
+
+
+class LiftedLinearModel(ABC):
+    """Upsilon(x) = [x, rho(x)], Upsilon_{k+1} = A Upsilon_k + B u_k (module docstring).
+
+    Subclasses implement :meth:`rho`. States given to ``lift``/``rollout`` are in the window
+    frame (use :meth:`rollout_world` for world-frame states). Attributes: A (n_K, n_K),
+    B (n_K, n_u), state_names (n_x,), control_names (n_u,), dt (s), x_mean/x_std (n_x,),
+    u_mean/u_std (n_u,).
+    """
+
+    def __init__(self, A: np.ndarray, B: np.ndarray, *, state_names: Sequence[str],
+                 control_names: Sequence[str], dt: float, x_mean: np.ndarray, x_std: np.ndarray,
+                 u_mean: np.ndarray, u_std: np.ndarray) -> None:
+        self.A = np.array(A, dtype=np.float64)
+        self.B = np.array(B, dtype=np.float64)
+        self.state_names = tuple(state_names)
+        self.control_names = tuple(control_names)
+        self.dt = float(dt)
+        n_x, n_u = len(self.state_names), len(self.control_names)
+        n_K = self.A.shape[0]
+        if self.A.shape != (n_K, n_K) or n_K < n_x:
+            raise ValueError(f"A must be square with at least {n_x} rows, got {self.A.shape}")
+        if self.B.shape != (n_K, n_u):
+            raise ValueError(f"B must have shape ({n_K}, {n_u}), got {self.B.shape}")
+        self.x_mean, self.x_std = self._stat(x_mean, n_x, "x_mean"), self._stat(x_std, n_x, "x_std", True)
+        self.u_mean, self.u_std = self._stat(u_mean, n_u, "u_mean"), self._stat(u_std, n_u, "u_std", True)
+        if not (self.dt > 0.0):
+            raise ValueError(f"dt must be positive, got {dt}")
+
+    @staticmethod
+    def _stat(v, n: int, what: str, positive: bool = False) -> np.ndarray:
+        v = np.array(v, dtype=np.float64).reshape(-1)
+        if v.shape != (n,) or not np.all(np.isfinite(v)) or (positive and np.any(v <= 0.0)):
+            raise ValueError(f"{what} must be {n} finite{' positive' if positive else ''} numbers, got {v}")
+        return v
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n_x(self) -> int:
+        return len(self.state_names)
+
+    @property
+    def n_u(self) -> int:
+        return len(self.control_names)
+
+    @property
+    def n_K(self) -> int:
+        return int(self.A.shape[0])
+
+    # ------------------------------------------------------------------ lifting
+    def normalise_state(self, x: np.ndarray) -> np.ndarray:
+        """(x - x_mean) / x_std, (..., n_x)."""
+        return (np.asarray(x, dtype=np.float64) - self.x_mean) / self.x_std
+
+    def normalise_control(self, u: np.ndarray) -> np.ndarray:
+        """(u - u_mean) / u_std, (..., n_u)."""
+        return (np.asarray(u, dtype=np.float64) - self.u_mean) / self.u_std
+
+    @abstractmethod
+    def rho(self, x: np.ndarray) -> np.ndarray:
+        """Observables beyond the state: x (..., n_x) window frame -> (..., n_K - n_x)."""
+
+    def lift(self, x: np.ndarray) -> np.ndarray:
+        """Upsilon(x) = [x, rho(x)]: x (..., n_x) -> (..., n_K)."""
+        x = np.asarray(x, dtype=np.float64)
+        if x.shape[-1] != self.n_x:
+            raise ValueError(f"expected states (..., {self.n_x}), got {x.shape}")
+        return np.concatenate([x, self.rho(x)], axis=-1)
+
+    # ------------------------------------------------------------------ prediction
+    def rollout(self, x0: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """Open-loop prediction: x0 (n_x,), controls (H, n_u) -> states (H + 1, n_x), row 0 = x0."""
+        x0 = np.asarray(x0, dtype=np.float64)
+        controls = np.asarray(controls, dtype=np.float64)
+        if x0.shape != (self.n_x,) or controls.ndim != 2 or controls.shape[1] != self.n_u:
+            raise ValueError(f"expected x0 ({self.n_x},) and controls (H, {self.n_u}), "
+                             f"got {x0.shape} and {controls.shape}")
+        return self.rollout_batch(x0[None], controls[None])[0]
+
+    def rollout_batch(self, x0: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """Batched :meth:`rollout`: x0 (M, n_x), controls (M, H, n_u) -> states (M, H + 1, n_x)."""
+        x0 = np.asarray(x0, dtype=np.float64)
+        controls = np.asarray(controls, dtype=np.float64)
+        M, H = controls.shape[0], controls.shape[1]
+        U = self.lift(x0)
+        out = np.empty((M, H + 1, self.n_x))
+        out[:, 0] = x0
+        At, Bt = self.A.T, self.B.T
+        for k in range(H):
+            U = U @ At + controls[:, k] @ Bt
+            out[:, k + 1] = U[:, : self.n_x]
+        return out
+
+    def rollout_world(self, x0: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """Rollout from a world-frame state: x0 (n_x,), controls (H, n_u) -> world states (H + 1, n_x).
+
+        x0 is moved to the window frame (its own pose becomes the origin), rolled out, and the
+        prediction moved back with :func:`from_window_frame`."""
+        x0 = np.asarray(x0, dtype=np.float64)
+        w0 = to_window_frame(x0[None], self.state_names)[0]
+        return from_window_frame(self.rollout(w0, controls), self.state_names, x0)
