@@ -27,6 +27,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-plot", action="store_true", help="skip the PNG")
     p.set_defaults(func=cmd_sim)
 
+    p = sub.add_parser("collect", add_help=False, help="record seeded random-excitation logs of a simulated plant "
+                                                        "(vflpcd collect --help)")
+    p.add_argument("args", nargs=argparse.REMAINDER)
+    p.set_defaults(func=cmd_collect)
+
+    p = sub.add_parser("train", help="offline training (needs the train extra: torch)")
+    train = p.add_subparsers(dest="target", required=True)
+    t = train.add_parser("koopman", add_help=False, help="deep Koopman model (vflpcd train koopman --help)")
+    t.add_argument("args", nargs=argparse.REMAINDER)
+    t.set_defaults(func=cmd_train_koopman)
+
     p = sub.add_parser("bench", help="benchmarks that measure and print a table (JSON and PNG beside it)")
     bench = p.add_subparsers(dest="target", required=True)
     b = bench.add_parser("guidance", help="guidance planning against Hybrid A* (the paper's planning table)")
@@ -41,6 +52,11 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("scenarios", help="list the scenarios in config/scenarios")
     p.set_defaults(func=cmd_scenarios)
 
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["collect"]:  # commands with parsers of their own get the rest of the line as it is
+        return cmd_collect(argparse.Namespace(args=argv[1:]))
+    if argv[:2] == ["train", "koopman"]:
+        return cmd_train_koopman(argparse.Namespace(args=argv[2:]))
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s %(message)s")
@@ -72,6 +88,24 @@ def cmd_sim(args) -> int:
     for f in files:
         print(f"wrote {f}")
     return 0
+
+
+def cmd_collect(args) -> int:
+    from sim.collect import main as collect_main
+
+    return collect_main(args.args)
+
+
+def cmd_train_koopman(args) -> int:
+    try:
+        from vflpcd.training.train_koopman import main as train_main
+    except ModuleNotFoundError as exc:
+        if exc.name != "torch":
+            raise
+        print("vflpcd: error: training needs torch: pip install -e '.[train]' (pins the CPU build torch==2.13.0)",
+              file=sys.stderr)
+        return 2
+    return train_main(args.args)
 
 
 def cmd_bench_guidance(args) -> int:

@@ -57,3 +57,15 @@ def test_bench_guidance_refuses_an_aerial_scenario(tmp_path):
     proc = subprocess.run(VFLPCD + ["bench", "guidance", "--scenario", "uav_3d", "--out", str(tmp_path)],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "needs a ground scenario" in proc.stderr
+
+
+def test_collect_through_the_vflpcd_command(tmp_path):
+    proc = subprocess.run(VFLPCD + ["collect", "dynamic_bicycle", "--minutes", "0.1", "--seed", "3", "--out",
+                                    str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    (log,) = sorted(tmp_path.glob("*.npz"))
+    from vflpcd.training.datasets import load_log
+
+    assert load_log(log).states.shape == (120, 6)
+    bad = subprocess.run(VFLPCD + ["collect", "submarine", "--minutes", "1"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "unknown plant 'submarine'" in bad.stderr
