@@ -49,6 +49,13 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
     b.set_defaults(func=cmd_bench_guidance)
 
+    b = bench.add_parser("dynamics", help="learned-model costs and online GP compensation on racing_track")
+    b.add_argument("--model", type=Path, default=None,
+                   help="vehicle model artifact (default config/models/dynamic_bicycle.npz)")
+    b.add_argument("--seed", type=int, default=0, help="seed of the plant's process noise (default 0)")
+    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    b.set_defaults(func=cmd_bench_dynamics)
+
     p = sub.add_parser("scenarios", help="list the scenarios in config/scenarios")
     p.set_defaults(func=cmd_scenarios)
 
@@ -119,6 +126,17 @@ def cmd_bench_guidance(args) -> int:
     if args.repeat < 1 or args.astar_repeat < 1:
         raise ConfigError("command line", "--repeat", "expected at least one run")
     bench_guidance(scenario, args.out, args.repeat, args.astar_repeat, args.safe_distance)
+    return 0
+
+
+def cmd_bench_dynamics(args) -> int:
+    from sim.bench.dynamics import bench_dynamics
+    from vflpcd.core.dynamics.koopman import load_koopman
+    from vflpcd.paths import config_dir
+
+    path = args.model or config_dir() / "models" / "dynamic_bicycle.npz"
+    model = load_koopman(path, state_names=("X", "Y", "psi", "vx", "vy", "omega"), control_names=("a_x", "delta_f"))
+    bench_dynamics(model, args.out, args.seed)
     return 0
 
 
