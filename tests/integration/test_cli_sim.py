@@ -69,3 +69,38 @@ def test_collect_through_the_vflpcd_command(tmp_path):
     assert load_log(log).states.shape == (120, 6)
     bad = subprocess.run(VFLPCD + ["collect", "submarine", "--minutes", "1"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "unknown plant 'submarine'" in bad.stderr
+
+
+def test_bench_dynamics_measures_and_compensation_halves_the_one_step_error(tmp_path):
+    proc = subprocess.run(VFLPCD + ["bench", "dynamics", "--out", str(tmp_path)], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    for label in ("encoder + lift", "GP mean + Jacobian", "GP full refit", "one-step RMSE", "1-s open-loop RMSE"):
+        assert label in proc.stdout
+    doc = json.loads((tmp_path / "bench_dynamics.json").read_text())
+    assert doc["timings"]["gp_inducing"] == 64 and doc["timings"]["gp_outputs"] == 3
+    for demo in doc["compensation"]:
+        one = demo["one_step_rmse"]
+        assert demo["gp_fitted"] and demo["learn_samples"] > 100
+        for channel in ("vy", "omega"):
+            assert one["compensated"][channel] <= 0.5 * one["nominal"][channel]
+
+
+def test_train_koopman_through_the_vflpcd_command(tmp_path):
+    data = tmp_path / "logs"
+    assert subprocess.run(VFLPCD + ["collect", "dynamic_bicycle", "--minutes", "3", "--out", str(data)],
+                          capture_output=True, timeout=120).returncode == 0
+    out = tmp_path / "model.npz"
+    proc = subprocess.run(VFLPCD + ["train", "koopman", "--data", str(data), "--val", "dynamic_bicycle_0_002",
+                                    "--n-lift", "10", "--epochs", "3", "--windows-per-epoch", "256", "--no-compare",
+                                    "--quiet", "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    from vflpcd.core.dynamics.koopman import load_koopman
+
+    model = load_koopman(out, state_names=("X", "Y", "psi", "vx", "vy", "omega"), control_names=("a_x", "delta_f"))
+    assert model.n_K == 10
+    manifest = json.loads(out.with_suffix(".manifest.json").read_text())
+    assert manifest["seed"] == 0
+    bad = subprocess.run(VFLPCD + ["train", "koopman", "--data", str(data), "--val", "nope", "--n-lift", "10",
+                                   "--out", str(out)], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
