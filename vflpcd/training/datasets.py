@@ -24,14 +24,14 @@ Bad input raises :class:`vflpcd.errors.ConfigError` naming the file and the fiel
 from __future__ import annotations
 
 import hashlib
-import io
 import logging
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
+
+from vflpcd.npzfile import write_npz
 
 from vflpcd.errors import ConfigError
 
@@ -235,15 +235,7 @@ def save_log(log_: Log, path: str | Path) -> Path:
         "breaks": np.array(log_.breaks, dtype="<i8"),
         "dropped_rows": np.array(log_.dropped_rows, dtype="<i8"),
     }
-    tmp = path.with_name(path.name + ".tmp")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for key, arr in arrays.items():
-            buf = io.BytesIO()
-            np.lib.format.write_array(buf, arr, allow_pickle=False)
-            info = zipfile.ZipInfo(key + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_DEFLATED
-            zf.writestr(info, buf.getvalue())
-    tmp.replace(path)
+    write_npz(path, arrays)
     log.info("wrote log %s (%d samples, %.1f s) to %s", log_.name, log_.n_samples, log_.duration, path)
     return path
 

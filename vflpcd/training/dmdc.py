@@ -133,9 +133,10 @@ def window_pairs(logs: Sequence[Log], window_steps: int, stride: int) -> tuple[n
     return np.concatenate(Xs), np.concatenate(Us), np.concatenate(Ys)
 
 
-def _check_logs(logs: Sequence[Log]) -> tuple[tuple[str, ...], tuple[str, ...], float]:
+def check_logs(logs: Sequence[Log], what: str = "training") -> tuple[tuple[str, ...], tuple[str, ...], float]:
+    """(state names, control names, dt) shared by all logs; ValueError if none or they differ."""
     if not logs:
-        raise ValueError("no training logs")
+        raise ValueError(f"no {what} logs")
     first = logs[0]
     for lg in logs[1:]:
         if (lg.state_names, lg.control_names) != (first.state_names, first.control_names) \
@@ -144,7 +145,8 @@ def _check_logs(logs: Sequence[Log]) -> tuple[tuple[str, ...], tuple[str, ...], 
     return first.state_names, first.control_names, first.dt
 
 
-def _std(a: np.ndarray) -> np.ndarray:
+def robust_std(a: np.ndarray) -> np.ndarray:
+    """Per-column std of a (N, n); columns with (almost) none get 1 so that normalising is safe."""
     s = a.std(axis=0)
     return np.where(s < _STD_FLOOR, 1.0, s)
 
@@ -157,7 +159,7 @@ def fit_lifted(logs: Sequence[Log], *, dictionary: str = "dmdc", window_s: float
     logs: training logs with equal channel names and dt; window_s: window length, s; stride:
     rows between window starts; ridge: Tikhonov weight on the normalised regressors; the rff
     options (n_features, bandwidth in normalised state units, seed) only for "rff"."""
-    state_names, control_names, dt = _check_logs(logs)
+    state_names, control_names, dt = check_logs(logs)
     if dictionary == "auto":
         dictionary = "vehicle" if vehicle_dictionary_applies(state_names) else "rff"
     if dictionary == "vehicle" and not vehicle_dictionary_applies(state_names):
@@ -170,8 +172,8 @@ def fit_lifted(logs: Sequence[Log], *, dictionary: str = "dmdc", window_s: float
         raise ValueError(f"window_s = {window_s} s is shorter than one step of {dt} s")
     X, U, Y = window_pairs(logs, H, stride)
     P, n_x = X.shape
-    x_mean, x_std = X.mean(axis=0), _std(X)
-    u_mean, u_std = U.mean(axis=0), _std(U)
+    x_mean, x_std = X.mean(axis=0), robust_std(X)
+    u_mean, u_std = U.mean(axis=0), robust_std(U)
     rff_W = rff_b = None
     if dictionary == "rff":
         rng = np.random.default_rng(seed)

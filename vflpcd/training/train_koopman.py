@@ -82,13 +82,13 @@ from vflpcd.core.dynamics.koopman import ACTIVATION, KoopmanModel
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_physical, to_window_frame
 from vflpcd.errors import ConfigError
 from vflpcd.training.datasets import Log, fingerprint, load_carsim, load_logs, split_by_log
+from vflpcd.training.dmdc import check_logs, robust_std
 from vflpcd.training.evaluate import open_loop_rmse
 
 log = logging.getLogger("vflpcd.training.train_koopman")
 
 EVAL_HORIZONS_S = (0.5, 1.0, 2.0)
 EVAL_STRIDE = 10
-_STD_FLOOR = 1e-9
 _A_ENC_INIT = 0.9
 
 
@@ -166,22 +166,6 @@ def make_windows(logs: Sequence[Log], steps: int, stride: int) -> tuple[np.ndarr
     if not Xs:
         raise ValueError(f"no window of {steps + 1} rows in the logs")
     return np.concatenate(Xs), np.concatenate(Us)
-
-
-def _check_logs(logs: Sequence[Log], what: str) -> tuple[tuple[str, ...], tuple[str, ...], float]:
-    if not logs:
-        raise ValueError(f"no {what} logs")
-    first = logs[0]
-    for lg in logs[1:]:
-        if (lg.state_names, lg.control_names) != (first.state_names, first.control_names) \
-                or abs(lg.dt - first.dt) > 1e-9:
-            raise ValueError(f"log {lg.name} differs from {first.name} in channel names or dt")
-    return first.state_names, first.control_names, first.dt
-
-
-def _std(a: np.ndarray) -> np.ndarray:
-    s = a.std(axis=0)
-    return np.where(s < _STD_FLOOR, 1.0, s)
 
 
 # ---------------------------------------------------------------------- network
@@ -316,8 +300,8 @@ def train_koopman(train_logs: Sequence[Log], val_logs: Sequence[Log], cfg: Train
     (fingerprint of the training logs, settings, final losses)."""
     torch = _torch()
     cfg.check()
-    state_names, control_names, dt = _check_logs(train_logs, "training")
-    v_names = _check_logs(val_logs, "validation")
+    state_names, control_names, dt = check_logs(train_logs, "training")
+    v_names = check_logs(val_logs, "validation")
     if v_names[:2] != (state_names, control_names) or abs(v_names[2] - dt) > 1e-9:
         raise ValueError("validation logs differ from the training logs in channel names or dt")
     n_x, n_u = len(state_names), len(control_names)
@@ -338,8 +322,8 @@ def train_koopman(train_logs: Sequence[Log], val_logs: Sequence[Log], cfg: Train
 
     Xtr, Utr = make_windows(train_logs, H, cfg.stride)
     Xva, Uva = make_windows(val_logs, H, cfg.val_stride)
-    stats = {"x_mean": Xtr[:, :-1].reshape(-1, n_x).mean(axis=0), "x_std": _std(Xtr[:, :-1].reshape(-1, n_x)),
-             "u_mean": Utr.reshape(-1, n_u).mean(axis=0), "u_std": _std(Utr.reshape(-1, n_u))}
+    stats = {"x_mean": Xtr[:, :-1].reshape(-1, n_x).mean(axis=0), "x_std": robust_std(Xtr[:, :-1].reshape(-1, n_x)),
+             "u_mean": Utr.reshape(-1, n_u).mean(axis=0), "u_std": robust_std(Utr.reshape(-1, n_u))}
     Xtr_n = (Xtr - stats["x_mean"]) / stats["x_std"]
     Utr_n = (Utr - stats["u_mean"]) / stats["u_std"]
     Xva_n = (Xva - stats["x_mean"]) / stats["x_std"]

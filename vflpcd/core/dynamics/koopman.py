@@ -51,10 +51,8 @@ naming the file and the key (``metadata.<field>`` for a metadata field).
 
 from __future__ import annotations
 
-import io
 import json
 import logging
-import zipfile
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -62,6 +60,7 @@ import numpy as np
 
 from vflpcd.core.dynamics.lifted import LiftedLinearModel
 from vflpcd.errors import ConfigError
+from vflpcd.npzfile import write_npz
 
 log = logging.getLogger("vflpcd.core.dynamics.koopman")
 
@@ -147,17 +146,7 @@ class KoopmanModel(LiftedLinearModel):
     def save(self, path: str | Path) -> Path:
         """Write the artifact to ``path`` (.npz). The bytes depend only on the model (fixed zip
         time stamps, sorted JSON), so equal models give identical files. Returns path."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-            for key, arr in self.arrays().items():
-                buf = io.BytesIO()
-                np.lib.format.write_array(buf, arr, allow_pickle=False)
-                info = zipfile.ZipInfo(key + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
-                info.compress_type = zipfile.ZIP_DEFLATED
-                zf.writestr(info, buf.getvalue())
-        tmp.replace(path)
+        path = write_npz(path, self.arrays())
         log.info("event=koopman_saved path=%s n_K=%d n_x=%d n_u=%d", path, self.n_K, self.n_x, self.n_u)
         return path
 
