@@ -93,6 +93,18 @@ class PlannerBase:
         return ObstacleImplicit.around(o.id, o.shape, o.center, o.yaw, o.velocity, o.stamp,
                                        reactive_distance=rep + self.params.reactive_margin, repulsive_distance=rep)
 
+    def check_clear(self, point: np.ndarray, terms, t: float, what: str) -> np.ndarray:
+        """point (d,) checked finite and outside every term's repulsive boundary at time t; GuidanceError
+        naming the obstacle otherwise. ``what`` is "start" or "goal". Returns the point as floats."""
+        point = np.asarray(point, float)
+        if point.shape != (self.dim,) or not np.all(np.isfinite(point)):
+            raise GuidanceError(f"{what} must be {self.dim} finite numbers, got {point!r}")
+        for term in terms:
+            if term.implicit.value(point[None, :], t)[0] <= term.implicit.c:
+                raise GuidanceError(f"obstacle {term.implicit.name!r} covers the {what} at "
+                                    f"{point.round(2).tolist()} (it is inside its repulsive boundary)")
+        return point
+
     def safe_smooth(self, raw: np.ndarray, terms, t0: float, times: np.ndarray | None) -> np.ndarray:
         """Smooth raw (K, d) with the configured std, halving it (down to none) while the smoothed
         points would cut into a repulsive boundary (moving obstacles at the points' times)."""
@@ -215,11 +227,7 @@ class GuidancePlanner(PlannerBase):
         elif p.virtual == "auto":
             field.virtuals = [v for t in terms.values() if (v := self.virtual_for(t, s0, s_end, graph)) is not None]
         if ends_path:
-            goal = self.path.point_at(self.path.length)[None, :]
-            for t in terms.values():
-                if t.implicit.value(goal)[0] <= t.implicit.c:
-                    raise GuidanceError(f"obstacle {t.implicit.name!r} covers the goal at {goal[0].round(2).tolist()} "
-                                        "(it is inside its repulsive boundary)")
+            self.check_clear(self.path.point_at(self.path.length), terms.values(), 0.0, "goal")
         grid = FieldGrid.build(field, (lo[0] - pad, hi[0] + pad, lo[1] - pad, hi[1] + pad), p.grid_resolution)
         x_end = float(graph.progress(self.path.point_at(s_end)[None, :])[0]) - (p.beta if ends_path else 0.0)
         return Prepared(field=field, grid=grid, s0=s0, s_end=s_end, x_end=x_end, ends_path=ends_path)
@@ -241,16 +249,10 @@ class GuidancePlanner(PlannerBase):
     def plan(self, prepared: Prepared, start: np.ndarray, t0: float, v0: float,
              movers: Sequence[ObstacleState] = (), heading: float | None = None) -> GuidancePlan:
         """Integrate from start (2,) at time t0 and speed v0, with moving obstacles, and time the result."""
-        start = np.asarray(start, float)
-        if start.shape != (2,) or not np.all(np.isfinite(start)):
-            raise GuidanceError(f"start must be 2 finite numbers, got {start!r}")
         field = prepared.field
         if movers:
             field = replace(field, movers=[self.actual_term(self.implicit(o), t0) for o in movers])
-        for t in field.statics + field.movers:
-            if t.implicit.value(start[None, :], t0)[0] <= t.implicit.c:
-                raise GuidanceError(f"obstacle {t.implicit.name!r} covers the start at {start.round(2).tolist()} "
-                                    "(it is inside its repulsive boundary)")
+        start = self.check_clear(start, field.statics + field.movers, t0, "start")
         h = None if heading is None else np.array([np.cos(heading), np.sin(heading)])
         res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h, None)
         for _ in range(MOVER_PASSES if movers else 0):  # place moving obstacles at the last pass's times

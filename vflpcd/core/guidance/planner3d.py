@@ -80,11 +80,7 @@ class GuidancePlanner3D(PlannerBase):
             if np.all(np.abs(np.clip(imp.center, lo, hi) - imp.center) <= imp.reach + 1.0):
                 obs.append(self.obstacle(imp))
         if ends_path:
-            goal = self.path.point_at(self.path.length)[None, :]
-            for ob in obs:
-                if ob.implicit.value(goal)[0] <= ob.implicit.c:
-                    raise GuidanceError(f"obstacle {ob.implicit.name!r} covers the goal at "
-                                        f"{goal[0].round(2).tolist()} (it is inside its repulsive boundary)")
+            self.check_clear(self.path.point_at(self.path.length), obs, 0.0, "goal")
         field = GuidanceField3D(path=graph, k_p=p.k_p, k_r=p.k_r, l1=p.l1, l2=p.l2, statics=obs)
         x_end = float(graph.progress(self.path.point_at(s_end)[None, :])[0]) - (p.beta if ends_path else 0.0)
         return Prepared3D(field=field, s0=s0, s_end=s_end, x_end=x_end, ends_path=ends_path)
@@ -92,16 +88,10 @@ class GuidancePlanner3D(PlannerBase):
     def plan(self, prepared: Prepared3D, start: np.ndarray, t0: float, v0: float,
              movers: Sequence[ObstacleState] = ()) -> GuidancePlan:
         p = self.params
-        start = np.asarray(start, float)
-        if start.shape != (3,) or not np.all(np.isfinite(start)):
-            raise GuidanceError(f"start must be 3 finite numbers, got {start!r}")
         field = prepared.field
         if movers:
             field = replace(field, movers=[self.obstacle(self.implicit(o), t0) for o in movers])
-        for ob in field.statics + field.movers:
-            if ob.implicit.value(start[None, :], t0)[0] <= ob.implicit.c:
-                raise GuidanceError(f"obstacle {ob.implicit.name!r} covers the start at {start.round(2).tolist()} "
-                                    "(it is inside its repulsive boundary)")
+        start = self.check_clear(start, field.statics + field.movers, t0, "start")
         step_times = None
         for _ in range(1 + (MOVER_PASSES if movers else 0)):  # moving obstacles at the last pass's times
             raw, reached, inherited, gammas = self._integrate(
