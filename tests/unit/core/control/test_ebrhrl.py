@@ -1,0 +1,115 @@
+"""Eb-RHRL against closed forms: finite-horizon LQR (h = 0, linear model) and a direct optimiser."""
+
+import numpy as np
+import pytest
+import scipy.linalg as sl
+from scipy.optimize import minimize
+
+from vflpcd.core.control.barrier import HorizonBarrier
+from vflpcd.core.control.ebrhrl import EbRHRL, KernelFeatures
+from vflpcd.core.control.problem import HorizonProblem, finite_horizon_lqr
+
+N, n, n_u = 15, 5, 2
+
+
+def _system(seed: int):
+    rng = np.random.default_rng(seed)
+    A = np.eye(n) + 0.1 * rng.normal(size=(n, n))          # open-loop unstable in general
+    B = 0.2 * rng.normal(size=(n, n_u))
+    Q = np.diag(rng.uniform(0.5, 3.0, n))
+    R = np.diag(rng.uniform(0.1, 1.0, n_u))
+    return rng, A, B, Q, R
+
+
+def _problem(A, B, Q, R, P, x0, c=None, gamma=1.0) -> HorizonProblem:
+    inf = np.full(n_u, np.inf)
+    return HorizonProblem(A=np.repeat(A[None], N, 0), B=np.repeat(B[None], N, 0),
+                          c=np.zeros((N, n)) if c is None else c, x0=x0, Q=Q, R=R, P=P, gamma=gamma,
+                          u_ref=np.zeros((N, n_u)), u_min=-inf, u_max=inf, du_max=inf, u_prev=np.zeros(n_u),
+                          G=np.zeros((N + 1, 0, n)), g=np.zeros((N + 1, 0)))
+
+
+def _barrier() -> HorizonBarrier:
+    T = N + 1
+    return HorizonBarrier(pos_index=np.array([0, 1]), p_ref=np.zeros((T, 2)),
+                          x_p=np.tile([[0.3, 0.2]], (1, T, 1)), normal=np.tile([[0.6, 0.8]], (1, T, 1)),
+                          mu=np.array([2.0]))
+
+
+def _features(rng, ell=5.0):
+    return KernelFeatures.from_samples(rng.normal(size=(300, n)), np.full(n, ell), 0.05, 16)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("terminal", ["dare", "Q", "10dare"])
+@pytest.mark.parametrize("gamma", [1.0, 0.9])
+def test_converged_actor_is_the_finite_horizon_lqr(seed, terminal, gamma):
+    rng, A, B, Q, R = _system(seed)
+    P_dare = sl.solve_discrete_are(np.sqrt(gamma) * A, np.sqrt(gamma) * B, Q, R)
+    P = {"dare": P_dare, "Q": Q, "10dare": 10 * P_dare}[terminal]
+    solver = EbRHRL(A, B, Q, R, P, gamma, _features(rng), N, i_max=200, tol=1e-20)
+    solver.W_a = 0.3 * rng.normal(size=solver.W_a.shape)   # start away from the prior
+    x0 = rng.normal(size=n)
+    u, info = solver.solve(_problem(A, B, Q, R, P, x0, gamma=gamma))
+    u_lqr = -finite_horizon_lqr(A, B, Q, R, P, N, gamma)[0] @ x0
+    assert np.linalg.norm(u[0] - u_lqr) / np.linalg.norm(u_lqr) < 1e-3
+    assert info.converged and info.iterations < 50
+
+
+def test_affine_term_matches_the_condensed_qp():
+    rng, A, B, Q, R = _system(7)
+    P = sl.solve_discrete_are(A, B, Q, R)
+    c = 0.1 * rng.normal(size=(N, n))
+    prob = _problem(A, B, Q, R, P, rng.normal(size=n), c)
+    u, info = EbRHRL(A, B, Q, R, P, 1.0, _features(rng), N, i_max=100, tol=1e-20).solve(prob)
+    best = minimize(lambda v: prob.cost(v.reshape(N, n_u)), np.zeros(N * n_u), method="BFGS",
+                    options={"gtol": 1e-10}).x.reshape(N, n_u)
+    assert np.allclose(u, best, atol=1e-4)
+
+
+def test_with_the_barrier_it_reaches_the_optimum_of_the_barrier_cost():
+    rng, A, B, Q, R = _system(3)
+    P = sl.solve_discrete_are(A, B, Q, R)
+    x0 = np.array([1.0, 0.5, 0.0, 0.0, 0.0])
+    prob = _problem(A, B, Q, R, P, x0)
+    barrier = _barrier()
+
+    def total(v):
+        U = v.reshape(N, n_u)
+        x = prob.rollout(U)
+        return prob.cost(U) + float(barrier.value(x)[:-1] @ np.ones(N) + barrier.value(x)[-1])
+
+    solver = EbRHRL(A, B, Q, R, P, 1.0, _features(rng), N, i_max=200, tol=1e-22)
+    u, info = solver.solve(prob, barrier)
+    best = minimize(total, np.zeros(N * n_u), method="BFGS", options={"gtol": 1e-10}).x.reshape(N, n_u)
+    assert info.converged
+    assert np.allclose(u, best, atol=1e-4)
+    assert total(u.ravel()) <= total(best.ravel()) + 1e-8
+
+
+def test_warm_start_after_shift_starts_near_the_solution():
+    rng, A, B, Q, R = _system(1)
+    P = sl.solve_discrete_are(A, B, Q, R)
+    feats = _features(rng)
+    c = 0.2 * rng.normal(size=(N + 1, n))
+    x0 = rng.normal(size=n)
+    warm = EbRHRL(A, B, Q, R, P, 1.0, feats, N, i_max=100, tol=1e-20)
+    u, _ = warm.solve(_problem(A, B, Q, R, P, x0, c[:-1]), _barrier())
+    warm.shift()
+    second = _problem(A, B, Q, R, P, A @ x0 + B @ u[0] + c[0], c[1:])
+    exact, _ = EbRHRL(A, B, Q, R, P, 1.0, feats, N, i_max=100, tol=1e-20).solve(second, _barrier())
+    warm.i_max = 1
+    cold = EbRHRL(A, B, Q, R, P, 1.0, feats, N, i_max=1)
+    u_warm, _ = warm.solve(second, _barrier())
+    u_cold, _ = cold.solve(second, _barrier())
+    assert np.abs(u_warm[0] - exact[0]).max() < 0.2 * np.abs(u_cold[0] - exact[0]).max()
+
+
+def test_shape_mismatch_is_an_error():
+    rng, A, B, Q, R = _system(0)
+    solver = EbRHRL(A, B, Q, R, Q, 1.0, _features(rng), N)
+    prob = _problem(A, B, Q, R, Q, np.zeros(n))
+    bad = HorizonProblem(**{**prob.__dict__, "A": prob.A[:-1], "B": prob.B[:-1], "c": prob.c[:-1],
+                            "u_ref": prob.u_ref[:-1]})
+    with pytest.raises(ValueError, match="does not match"):
+        solver.solve(bad)

@@ -1,0 +1,196 @@
+"""Eb-RHRL: receding-horizon actor-critic with the exponential barrier (paper section III-D).
+
+Networks (eq. hat_u), one pair per prediction step tau = 0 .. N (step 0 is the current tick):
+
+    u^_tau(x~)      = W_a,tau' Phi(x~) - K_tau x~                           (actor)
+    lambda^_tau(x~) = W_c,tau' Phi(x~)                                       (critic)
+    Phi(x~) = [k(x~, c_1) .. k(x~, c_nPhi)],  k(x, c) = exp(-1/2 ||(x - c) / ell||^2)
+
+with c_j the RL dictionary (ALD over sampled error states, ``KernelFeatures.from_samples``).
+The actor carries the finite-horizon LQR feedback -K_tau x~ of the nominal error model (the
+Riccati recursion from the terminal P) as a fixed prior; its kernel part learns what the
+prior does not know: the barrier, the GP correction and the reference's own model error c_tau.
+
+One iteration i (Algorithm 1, function LPC):
+1. apply u^_tau to the error model (eq. identification_form_dynmaic, linearised at the
+   reference as ``HorizonProblem``): x~_{tau+1} = A_tau x~_tau + B_tau u^_tau + c_tau;
+2. target costates (eq. approximated_optimal_valuefunction), from tau = N down to 0:
+   lambda_N = 2 P x~_N + dh/dx~_N,
+   lambda_tau = 2 Q x~_tau + gamma A_d,tau' lambda^_{tau+1}(x~_{tau+1}) + dh/dx~_tau
+                - K_tau' (2 R u~_tau + gamma B_d,tau' lambda^_{tau+1}),
+   each critic fitted to its target (eqs. epsilon_c and WaWc_update, normalised step
+   eta_c = 1 / ||Phi||^2, which makes epsilon_c zero at the sample) before step tau - 1 reads it.
+   The last term is the actor's stationarity residual (zero at the fixed point, where the target
+   is the paper's) fed back through the prior gain: it makes lambda the costate of the closed
+   loop the rollout runs, so that step 3 is a Newton step of the horizon cost;
+3. target controls (eq. approximated_optimal_action) for all tau at once: the stationarity
+   condition 2 R u~ + gamma B_d,tau' lambda^_{tau+1} = 0 that defines it, solved for its
+   implicit dependence on u~ through x~_{tau+1} by one Newton step with the Riccati curvature:
+   u~_tau <- u^_tau - M_tau^-1 (2 R u^_tau + gamma B_d,tau' lambda^_{tau+1}),  M_tau = 2 R + 2 gamma B' S_{tau+1} B;
+   with S = 0 this is the paper's -1/2 gamma R^-1 B' lambda^ exactly;
+4. actor update (eqs. epsilon_a and WaWc_update) with the normalised step eta_a / ||Phi||^2.
+Iterate until max_tau epsilon_a <= tol or i_max. At a fixed point eq. optimal_action and eq.
+optima_lambda hold along the predicted trajectory: with h = 0 and a linear model that is the
+finite-horizon LQR solution.
+
+Deviation, measured on the bicycle's Koopman model: the targets of step 2 are computed
+backwards (each from the critic just updated at tau + 1, the order of finite-horizon DHP);
+computing all of them from the previous iteration's critics at once diverged, and so did the
+plain target of step 3 without the Newton step and the feedback prior (see the tests).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vflpcd.core.control.barrier import HorizonBarrier
+from vflpcd.core.control.problem import HorizonProblem
+from vflpcd.core.dynamics.ald import sparsify
+
+
+class KernelFeatures:
+    """Phi over a dictionary C (n_Phi, n) with per-dimension length scales ell (n,).
+
+    k(x, c) = exp(a_j + b_j' x - 1/2 ||x / ell||^2), a_j = -1/2 ||c_j / ell||^2, b_j = c_j / ell^2."""
+
+    def __init__(self, centers: np.ndarray, ell: np.ndarray) -> None:
+        self.centers = np.array(centers, dtype=float)
+        self.ell = np.array(ell, dtype=float)
+        if self.centers.ndim != 2 or self.ell.shape != (self.centers.shape[1],) or np.any(self.ell <= 0):
+            raise ValueError("centers must be (n_Phi, n) and ell (n,) positive")
+        inv2 = 1.0 / self.ell ** 2
+        self._b = self.centers * inv2                      # (n_Phi, n)
+        self._a = -0.5 * np.sum(self.centers * self._b, axis=1)
+        self._h = 0.5 * inv2
+
+    @property
+    def size(self) -> int:
+        return int(self.centers.shape[0])
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """Phi: x (..., n) -> (..., n_Phi)."""
+        x = np.asarray(x, float)
+        return np.exp(self._a + x @ self._b.T - (x * x) @ self._h)
+
+    @classmethod
+    def from_samples(cls, samples: np.ndarray, ell: np.ndarray, nu: float, size: int) -> "KernelFeatures":
+        """ALD dictionary (threshold nu, at most ``size`` centres) over sampled error states
+        samples (S, n), scaled by ell; the origin is always the first centre."""
+        samples = np.asarray(samples, float)
+        scaled = np.vstack([np.zeros((1, samples.shape[1])), samples / ell])
+        keep = sparsify(scaled, None, nu, size)
+        return cls(scaled[keep] * ell, ell)
+
+
+@dataclass
+class SolveInfo:
+    """iterations run, whether the tolerance was met, the final max epsilon_a and epsilon_c."""
+
+    iterations: int
+    converged: bool
+    eps_a: float
+    eps_c: float
+
+
+class EbRHRL:
+    """The actor-critic solver of one horizon (module docstring).
+
+    A (n, n), B (n, n_u): the nominal error model the prior and the Newton curvature come from;
+    Q (n, n), R (n_u, n_u), P (n, n) terminal, gamma; features: Phi; N: horizon steps;
+    eta_a in (0, 1]: actor step; i_max, tol: iteration cap and tolerance on max epsilon_a.
+    """
+
+    def __init__(self, A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, P: np.ndarray,
+                 gamma: float, features: KernelFeatures, N: int, eta_a: float = 1.0, i_max: int = 10,
+                 tol: float = 1e-8) -> None:
+        if not (0.0 < gamma <= 1.0) or not (0.0 < eta_a <= 1.0) or N < 1 or i_max < 1:
+            raise ValueError("need 0 < gamma <= 1, 0 < eta_a <= 1, N >= 1, i_max >= 1")
+        self.A, self.B = np.array(A, float), np.array(B, float)
+        self.Q, self.R, self.P = np.array(Q, float), np.array(R, float), np.array(P, float)
+        self.gamma, self.features, self.N = float(gamma), features, int(N)
+        self.eta_a, self.i_max, self.tol = float(eta_a), int(i_max), float(tol)
+        n, n_u = self.B.shape
+        self.n, self.n_u = n, n_u
+        # finite-horizon Riccati of the nominal model: S_tau (N + 1, n, n), K_tau (N, n_u, n)
+        S = np.empty((N + 1, n, n))
+        K = np.empty((N, n_u, n))
+        S[N] = self.P
+        for k in range(N - 1, -1, -1):
+            K[k] = np.linalg.solve(self.R + gamma * self.B.T @ S[k + 1] @ self.B, gamma * self.B.T @ S[k + 1] @ self.A)
+            S[k] = self.Q + gamma * self.A.T @ S[k + 1] @ (self.A - self.B @ K[k])
+            S[k] = 0.5 * (S[k] + S[k].T)
+        self.S, self.K = S, K
+        M = 2.0 * self.R[None] + 2.0 * gamma * np.einsum("ji,tjk,kl->til", self.B, S[1:], self.B)
+        self.M_inv = np.linalg.inv(M)                                   # (N, n_u, n_u)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the learned weights (the actor becomes the LQR prior, the critic zero)."""
+        m = self.features.size
+        self.W_a = np.zeros((self.N, m, self.n_u))
+        self.W_c = np.zeros((self.N + 1, m, self.n))
+
+    def shift(self) -> None:
+        """Receding horizon: step tau + 1's weights become step tau's (the last is kept)."""
+        self.W_a[:-1] = self.W_a[1:].copy()
+        self.W_c[:-1] = self.W_c[1:].copy()
+
+    def rollout(self, problem: HorizonProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Apply the actor to the error model: x~ (N + 1, n), u~ (N, n_u), Phi (N + 1, n_Phi)."""
+        N, f = self.N, self.features
+        x = np.empty((N + 1, self.n))
+        u = np.empty((N, self.n_u))
+        phi = np.empty((N + 1, f.size))
+        x[0] = problem.x0
+        A, B, c, K, W = problem.A, problem.B, problem.c, self.K, self.W_a
+        a, b, h = f._a, f._b, f._h
+        for k in range(N):
+            xk = x[k]
+            phi[k] = np.exp(a + b @ xk - h @ (xk * xk))
+            u[k] = phi[k] @ W[k] - K[k] @ xk
+            x[k + 1] = A[k] @ xk + B[k] @ u[k] + c[k]
+        phi[N] = f(x[N])
+        return x, u, phi
+
+    def costates(self, problem: HorizonProblem, x: np.ndarray, u: np.ndarray,
+                 barrier: HorizonBarrier | None) -> np.ndarray:
+        """Target costates lambda_tau (N + 1, n) of step 2 along the rollout x~ (N + 1, n), u~ (N, n_u)."""
+        grad_h = barrier.gradient(x) if barrier is not None else np.zeros_like(x)
+        lam = np.empty_like(x)
+        lam[-1] = 2.0 * self.P @ x[-1] + grad_h[-1]
+        stage = 2.0 * x @ self.Q.T + grad_h
+        Ru2 = 2.0 * u @ self.R.T
+        gA = self.gamma * problem.A
+        gB = self.gamma * problem.B
+        KT = self.K.transpose(0, 2, 1)
+        for k in range(self.N - 1, -1, -1):
+            nxt = lam[k + 1]
+            lam[k] = stage[k] + nxt @ gA[k] - KT[k] @ (Ru2[k] + nxt @ gB[k])
+        return lam
+
+    def solve(self, problem: HorizonProblem, barrier: HorizonBarrier | None = None) -> tuple[np.ndarray, SolveInfo]:
+        """Iterate from the current weights; returns u~ (N, n_u) (the last targets) and the info."""
+        if problem.N != self.N or problem.n != self.n or problem.n_u != self.n_u:
+            raise ValueError(f"problem of shape N={problem.N}, n={problem.n}, n_u={problem.n_u} "
+                             f"does not match the solver's {self.N}, {self.n}, {self.n_u}")
+        R2, gamma = 2.0 * self.R, self.gamma
+        BT = problem.B.transpose(0, 2, 1)                                # (N, n_u, n)
+        info = SolveInfo(0, False, np.inf, np.inf)
+        for i in range(1, self.i_max + 1):
+            x, u, phi = self.rollout(problem)
+            lam = self.costates(problem, x, u, barrier)
+            lam_hat = np.einsum("tm,tmn->tn", phi, self.W_c)
+            inv_norm = 1.0 / np.maximum(np.einsum("tm,tm->t", phi, phi), 1e-300)
+            self.W_c += np.einsum("tm,tn->tmn", phi * inv_norm[:, None], lam - lam_hat)       # eta_c = 1/||Phi||^2
+            grad = u @ R2.T + gamma * np.einsum("tun,tn->tu", BT, lam[1:])
+            target = u - np.einsum("tuv,tv->tu", self.M_inv, grad)                            # step 3
+            err = target - u
+            self.W_a += self.eta_a * np.einsum("tm,tu->tmu", phi[:-1] * inv_norm[:-1, None], err)
+            eps_a = 0.5 * float(np.max(np.einsum("tu,tu->t", err, err)))
+            eps_c = 0.5 * float(np.max(np.einsum("tn,tn->t", lam - lam_hat, lam - lam_hat)))
+            info = SolveInfo(i, eps_a <= self.tol, eps_a, eps_c)
+            if info.converged or not np.isfinite(eps_a):
+                break
+        return target, info
