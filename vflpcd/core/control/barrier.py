@@ -12,7 +12,8 @@ pose, and n_p the boundary's outward unit normal there. The distance error is
 p(x) the position part of the state. Outside the safety boundary (where the controller keeps the
 robot) pi = ||p - x_p||, the paper's ||pi(x, x_p)||; inside, pi < 0 and the barrier keeps growing,
 so its gradient pushes outwards there too (the plain norm would pull the robot towards the
-obstacle once past x_p). Per tick x_p and n_p are fixed, so h is an exponential of an affine
+obstacle once past x_p); below pi / l_b = PI_MIN it continues as its tangent line, so a
+prediction deep inside gets a bounded push. Per tick x_p and n_p are fixed, so h is an exponential of an affine
 function of the state and its gradient is exact: dh/dp = -(h / l_b) n_p. l_b (default 1 m) is
 a length scale the paper leaves at 1. Several threatening obstacles add their barriers.
 
@@ -29,7 +30,7 @@ import numpy as np
 
 from vflpcd.core.obstacles import ObstacleState
 
-PI_MIN = -20.0  # lower clip of pi / l_b: exp(20) keeps h finite however deep the prediction goes
+PI_MIN = -2.0  # below this pi / l_b the exponential continues as its tangent line (bounded gradient)
 FD_STEP = 1e-5  # m, central differences of the signed distance for the normal
 
 
@@ -83,24 +84,25 @@ class HorizonBarrier:
         return int(self.mu.shape[0])
 
     def _scaled_pi(self, x_tilde: np.ndarray) -> np.ndarray:
-        """pi / l_b, (K, N + 1), clipped below at PI_MIN."""
+        """pi / l_b, (K, N + 1)."""
         p = self.p_ref + x_tilde[:, self.pos_index]
-        pi = np.einsum("ktd,ktd->kt", self.normal, p[None] - self.x_p) / self.length
-        return np.maximum(pi, PI_MIN)
+        return np.einsum("ktd,ktd->kt", self.normal, p[None] - self.x_p) / self.length
 
     def value(self, x_tilde: np.ndarray) -> np.ndarray:
         """h at every step: x~ (N + 1, n) -> (N + 1,)."""
         if self.count == 0:
             return np.zeros(x_tilde.shape[0])
-        return self.mu @ np.exp(-self._scaled_pi(x_tilde))
+        pi = self._scaled_pi(x_tilde)
+        deep = np.exp(-PI_MIN) * (1.0 - (pi - PI_MIN))
+        return self.mu @ np.where(pi >= PI_MIN, np.exp(-np.maximum(pi, PI_MIN)), deep)
 
     def gradient(self, x_tilde: np.ndarray) -> np.ndarray:
         """dh/dx~ at every step: x~ (N + 1, n) -> (N + 1, n) (zero off the position entries)."""
         grad = np.zeros_like(x_tilde)
         if self.count == 0:
             return grad
-        pi = self._scaled_pi(x_tilde)
-        h = self.mu[:, None] * np.exp(-pi) * (pi > PI_MIN)          # (K, T); flat where clipped
+        pi = np.maximum(self._scaled_pi(x_tilde), PI_MIN)
+        h = self.mu[:, None] * np.exp(-pi)                          # (K, T); constant slope below PI_MIN
         grad[:, self.pos_index] = -np.einsum("kt,ktd->td", h, self.normal) / self.length
         return grad
 

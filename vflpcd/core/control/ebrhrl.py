@@ -28,7 +28,9 @@ One iteration i (Algorithm 1, function LPC):
    implicit dependence on u~ through x~_{tau+1} by one Newton step with the Riccati curvature:
    u~_tau <- u^_tau - M_tau^-1 (2 R u^_tau + gamma B_d,tau' lambda^_{tau+1}),  M_tau = 2 R + 2 gamma B' S_{tau+1} B;
    with S = 0 this is the paper's -1/2 gamma R^-1 B' lambda^ exactly;
-4. actor update (eqs. epsilon_a and WaWc_update) with the normalised step eta_a / ||Phi||^2.
+4. actor update (eqs. epsilon_a and WaWc_update) with the normalised step eta_a / ||Phi||^2,
+   halved for the rest of the solve whenever max epsilon_a grew (the Newton step ignores the
+   barrier's curvature and can overshoot near an obstacle).
 Iterate until max_tau epsilon_a <= tol or i_max. At a fixed point eq. optimal_action and eq.
 optima_lambda hold along the predicted trajectory: with h = 0 and a linear model that is the
 finite-horizon LQR solution.
@@ -48,6 +50,9 @@ import numpy as np
 from vflpcd.core.control.barrier import HorizonBarrier
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.dynamics.ald import sparsify
+
+
+PHI_FLOOR = 1e-2  # floor of ||Phi||^2 in the normalised steps: far from the dictionary, no blow-up
 
 
 class KernelFeatures:
@@ -178,17 +183,20 @@ class EbRHRL:
         R2, gamma = 2.0 * self.R, self.gamma
         BT = problem.B.transpose(0, 2, 1)                                # (N, n_u, n)
         info = SolveInfo(0, False, np.inf, np.inf)
+        eta = self.eta_a
         for i in range(1, self.i_max + 1):
             x, u, phi = self.rollout(problem)
             lam = self.costates(problem, x, u, barrier)
             lam_hat = np.einsum("tm,tmn->tn", phi, self.W_c)
-            inv_norm = 1.0 / np.maximum(np.einsum("tm,tm->t", phi, phi), 1e-300)
+            inv_norm = 1.0 / np.maximum(np.einsum("tm,tm->t", phi, phi), PHI_FLOOR)
             self.W_c += np.einsum("tm,tn->tmn", phi * inv_norm[:, None], lam - lam_hat)       # eta_c = 1/||Phi||^2
             grad = u @ R2.T + gamma * np.einsum("tun,tn->tu", BT, lam[1:])
             target = u - np.einsum("tuv,tv->tu", self.M_inv, grad)                            # step 3
             err = target - u
-            self.W_a += self.eta_a * np.einsum("tm,tu->tmu", phi[:-1] * inv_norm[:-1, None], err)
             eps_a = 0.5 * float(np.max(np.einsum("tu,tu->t", err, err)))
+            if eps_a > info.eps_a:          # the last step overshot (barrier curvature): halve the next
+                eta *= 0.5
+            self.W_a += eta * np.einsum("tm,tu->tmu", phi[:-1] * inv_norm[:-1, None], err)
             eps_c = 0.5 * float(np.max(np.einsum("tn,tn->t", lam - lam_hat, lam - lam_hat)))
             info = SolveInfo(i, eps_a <= self.tol, eps_a, eps_c)
             if info.converged or not np.isfinite(eps_a):

@@ -1,0 +1,61 @@
+"""VF-LPC as a Controller: tracking on the shipped model, input checks, the LQR fallback."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sim.lpc import make_vflpc
+from sim.plants import make_plant
+from sim.scenarios import load_scenario
+from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.shapes import Circle
+
+
+@pytest.fixture(scope="module")
+def straight():
+    sc = load_scenario("carsim_avoidance")
+    return dataclasses.replace(sc, obstacles=())
+
+
+def test_tracks_the_guidance_reference_without_fallbacks(straight):
+    ctrl = make_vflpc(straight)
+    plant = make_plant(straight, 0)
+    for k in range(80):                       # 4 s on the first straight
+        u = ctrl.step(plant.state, k * 0.05)
+        assert np.all(np.isfinite(u))
+        plant.step(u, 0.05)
+    proj = straight.path.project(plant.position())
+    assert abs(proj.lateral) < 0.1
+    assert abs(plant.state[3] - straight.v_desired) < 0.3
+    assert ctrl.fallbacks == 0 and ctrl.last_info.converged
+
+
+def test_bad_state_and_obstacles_are_rejected(straight):
+    ctrl = make_vflpc(straight)
+    with pytest.raises(ValueError, match="finite"):
+        ctrl.step(np.array([0.0, 0.0, 0.0, np.nan, 0.0, 0.0]), 0.0)
+    bad = ObstacleState("ghost", Circle(1.0), np.array([np.inf, 0.0]), 0.0, np.zeros(2), 0.0)
+    with pytest.raises(ValueError, match="ghost"):
+        ctrl.step(make_plant(straight, 0).state, 0.0, [bad])
+
+
+def test_diverging_solver_falls_back_to_the_terminal_lqr(straight):
+    ctrl = make_vflpc(straight)
+    plant = make_plant(straight, 0)
+
+    class Broken:
+        def solve(self, problem, barrier):
+            return np.full((problem.N, problem.n_u), np.nan), None
+
+        def shift(self):
+            pass
+
+        def reset(self):
+            Broken.resets += 1
+
+    Broken.resets = 0
+    ctrl.solver = Broken()
+    u = ctrl.step(plant.state, 0.0)
+    assert np.all(np.isfinite(u)) and ctrl.fallbacks == 1 and Broken.resets == 1
+    assert np.all(u >= ctrl.limits.u_min) and np.all(u <= ctrl.limits.u_max)

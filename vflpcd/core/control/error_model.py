@@ -1,0 +1,113 @@
+"""The tick's horizon problem from the robot state, the guidance reference and the lifted model.
+
+All states are taken into the window frame of the current pose (``lifted.to_window_frame``:
+the robot at the origin heading along +X for the vehicle, at the origin for the quadrotor) and
+lifted together: Upsilon(x) (n_K,) for the robot and Upsilon(x_r,tau) for tau = 0 .. N.
+
+* error state (paper eq. discrete-time-nonlinear-system-dynmaics): x~_tau = Upsilon - Upsilon_r,
+  without the constant observable (identically zero in the error), n = n_K - 1;
+* reference control u_r,tau: the least-squares solution of the model on the physical rows,
+  x_r,tau+1 = [A Upsilon_r,tau + B u_r]_{1..n_x} (the paper's eq. nominal_desired_path read as
+  the definition of u_r), clipped into the actuator limits;
+* c_tau = A Upsilon_r,tau + B u_r,tau + B_d m(z_r,tau) - Upsilon_r,tau+1: what the reference does not
+  satisfy under the (compensated) model;
+* A_tau, B_tau: eq. JocabianMatrices at (Upsilon_r,tau, u_r,tau) when a GP is given, else A and B.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vflpcd.core.control.problem import HorizonProblem
+from vflpcd.core.dynamics.compensation import KoopmanCompensation
+from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout, to_window_frame
+from vflpcd.core.dynamics.sparse_gp import FITCGP
+
+
+@dataclass(frozen=True)
+class Limits:
+    """u_min, u_max (n_u,) and the per-step rate limit du_max (n_u,) (inf: none)."""
+
+    u_min: np.ndarray
+    u_max: np.ndarray
+    du_max: np.ndarray
+
+
+@dataclass(frozen=True)
+class TickFrame:
+    """What the controller needs back: the window origin (the world state, (n_x,)), the lifted
+    robot state U (n_K,) and reference U_r (N + 1, n_K), and the reference in the window frame
+    x_r (N + 1, n_x)."""
+
+    origin: np.ndarray
+    U: np.ndarray
+    U_r: np.ndarray
+    x_r: np.ndarray
+
+
+class ErrorModel:
+    """Builds ``HorizonProblem``s for a lifted model with the constant observable last.
+
+    Q_x (n_x,) weights of the physical states, q_lift the weight of each encoder observable,
+    R (n_u, n_u), gamma, P (n, n) terminal, N steps, limits; comp: the GP structure (or None)."""
+
+    def __init__(self, model: LiftedLinearModel, Q_x: np.ndarray, q_lift: float, R: np.ndarray, gamma: float,
+                 P: np.ndarray, N: int, limits: Limits, comp: KoopmanCompensation | None = None) -> None:
+        A, B = model.A, model.B
+        e_last = np.zeros(model.n_K)
+        e_last[-1] = 1.0
+        if not (np.allclose(A[-1], e_last) and np.allclose(B[-1], 0.0)):
+            raise ValueError("the lifted model's last observable must be the constant 1")
+        self.model, self.N, self.limits, self.comp = model, int(N), limits, comp
+        self.n = model.n_K - 1
+        self.A, self.B = A[:-1, :-1], B[:-1]
+        self.Q = np.diag(np.concatenate([np.asarray(Q_x, float), np.full(self.n - model.n_x, float(q_lift))]))
+        self.R, self.gamma, self.P = np.asarray(R, float), float(gamma), np.asarray(P, float)
+        self._B_x_pinv = np.linalg.pinv(B[: model.n_x])
+        self.layout = PoseLayout.of(model.state_names)
+
+    def frame(self, state: np.ndarray, reference: np.ndarray) -> TickFrame:
+        """Window frame of the world state (n_x,) and world reference (N + 1, n_x), lifted."""
+        window = to_window_frame(np.vstack([state, reference]), self.model.state_names)
+        U = self.model.lift(window)
+        return TickFrame(np.asarray(state, float), U[0], U[1:], window[1:])
+
+    def problem(self, frame: TickFrame, u_prev: np.ndarray, gp: FITCGP | None = None) -> HorizonProblem:
+        """The horizon problem of the module docstring."""
+        m, N, lim = self.model, self.N, self.limits
+        U_r = frame.U_r
+        pred = U_r[:-1] @ m.A.T                                           # (N, n_K)
+        u_r = (U_r[1:, : m.n_x] - pred[:, : m.n_x]) @ self._B_x_pinv.T
+        u_r = np.clip(u_r, lim.u_min, lim.u_max)
+        nxt = pred + u_r @ m.B.T
+        if gp is not None and self.comp is not None:
+            z = self.comp.gp_input(U_r[:-1], u_r)
+            nxt = nxt + gp.means(z) @ self.comp.B_d.T
+            jac = [self.comp.jacobians(U_r[k], u_r[k], gp) for k in range(N)]
+            A = np.array([a[:-1, :-1] for a, _ in jac])
+            B = np.array([b[:-1] for _, b in jac])
+        else:
+            A = np.broadcast_to(self.A, (N, self.n, self.n))
+            B = np.broadcast_to(self.B, (N, self.n, m.n_u))
+        c = (nxt - U_r[1:])[:, :-1]
+        x0 = (frame.U - U_r[0])[:-1]
+        return HorizonProblem(A=A, B=B, c=c, x0=x0, Q=self.Q, R=self.R, P=self.P, gamma=self.gamma, u_ref=u_r,
+                              u_min=lim.u_min, u_max=lim.u_max, du_max=lim.du_max,
+                              u_prev=np.asarray(u_prev, float), G=np.zeros((N + 1, 0, self.n)),
+                              g=np.zeros((N + 1, 0)))
+
+    def to_window(self, frame: TickFrame, points: np.ndarray, vectors: bool = False) -> np.ndarray:
+        """World points (or direction vectors) (..., d) -> the tick's window frame."""
+        lay = self.layout
+        pts = np.asarray(points, float)
+        origin = frame.origin
+        if lay.kind == "none":
+            return pts
+        p = pts if vectors else pts - origin[list(lay.position)]
+        if lay.kind == "position":
+            return p
+        psi0 = origin[lay.heading]
+        c, s = np.cos(psi0), np.sin(psi0)
+        return np.stack([c * p[..., 0] + s * p[..., 1], -s * p[..., 0] + c * p[..., 1]], axis=-1)

@@ -1,0 +1,353 @@
+"""VF-LPC, paper Algorithm 1, as one steppable ``Controller``.
+
+Every ``step(state, t, obstacles)``:
+1. checks the input (finite state; obstacles with finite centres and velocities);
+2. guidance (``Main``, lines "reaching the end of the guiding trajectory"): replans the GVF
+   reference when none exists, when fewer than N dt + end_margin seconds of it are left, or when
+   the obstacle picture changed (an obstacle appeared, went or changed velocity); a failed replan
+   keeps the previous reference and is counted;
+3. builds the horizon problem in the lifted error space (``error_model``), with the GP
+   correction when an online compensator has a model;
+4. switches the barrier on for every moving obstacle in the pursuer-evader region E_p (``game_region``;
+   mu_o = 0 in E_c), at most ``max_threats`` of them, nearest first (``barrier``);
+5. solves with the horizon solver (Eb-RHRL by default, warm-started from the previous tick's
+   shifted weights) and applies the first control u = u_r,0 + u~_0, clipped into the actuator
+   magnitude and rate limits;
+6. a solve that returns a non-finite command, or one beyond ``divergence`` times the actuator
+   range, is replaced by the terminal LQR law u~ = -K_P x~ (K_P from the DARE that gives P),
+   counted in ``fallbacks``, and the solver's weights are reset.
+
+GP samples are offered to the compensator every step (``OnlineCompensator.observe``, cheap);
+the refit is worker work: ``background()`` runs it when due (the offline runner calls it after
+each timed step, the daemon on its model worker).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Protocol, Sequence
+
+import numpy as np
+import scipy.linalg as sl
+
+from vflpcd.core.control.barrier import HorizonBarrier, no_barrier, safety_points
+from vflpcd.core.control.ebrhrl import EbRHRL, KernelFeatures
+from vflpcd.core.control.error_model import ErrorModel, Limits, TickFrame
+from vflpcd.core.control.game_region import threats
+from vflpcd.core.control.problem import HorizonProblem
+from vflpcd.core.dynamics.compensation import OnlineCompensator
+from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
+from vflpcd.core.guidance.implicit import GuidanceError
+from vflpcd.core.obstacles import ObstacleState
+from vflpcd.tomlread import Table
+
+log = logging.getLogger("vflpcd.core.vflpc")
+
+
+@dataclass(frozen=True)
+class VFLPCParams:
+    """The numbers of config/controllers/vflpc.toml for one platform (see that file)."""
+
+    Q_x: np.ndarray
+    R: np.ndarray
+    q_lift: float
+    gamma: float
+    horizon_s: float
+    i_max: int
+    tol: float
+    eta_a: float
+    divergence: float
+    error_std: np.ndarray
+    samples: int
+    size: int
+    nu: float
+    ell_factor: float
+    seed: int
+    mu: float
+    barrier_length: float
+    l_safe: float
+    max_threats: int
+    end_margin: float
+    velocity_change: float
+    refit_every: int = 100
+    refit_min_samples: int = 60
+
+    @classmethod
+    def from_table(cls, root: Table, platform: str) -> "VFLPCParams":
+        root.check_known({"cost", "horizon", "solver", "features", "barrier", "replan", "compensation"})
+        cost, hor, sol = root.table("cost"), root.table("horizon"), root.table("solver")
+        feat, bar, rep = root.table("features"), root.table("barrier"), root.table("replan")
+        cost.check_known({"q_ground", "r_ground", "q_aerial", "r_aerial", "q_lift", "gamma"})
+        hor.check_known({"seconds"})
+        sol.check_known({"i_max", "tol", "eta_a", "divergence"})
+        feat.check_known({"error_std_ground", "error_std_aerial", "samples", "size", "nu", "ell_factor", "seed"})
+        bar.check_known({"mu", "length", "l_safe", "max_threats"})
+        rep.check_known({"end_margin", "velocity_change"})
+        comp = root.table("compensation", {})
+        comp.check_known({"refit_every", "min_samples"})
+        q, r = cost.vector(f"q_{platform}"), cost.vector(f"r_{platform}")
+        if np.any(q < 0) or np.any(r <= 0):
+            raise cost.error(f"q_{platform}", "state weights must be >= 0 and control weights > 0")
+        gamma = cost.number("gamma", min=0.0)
+        if not (0.0 < gamma <= 1.0):
+            raise cost.error("gamma", f"must lie in (0, 1], got {gamma}")
+        eta_a = sol.number("eta_a", positive=True)
+        if eta_a > 1.0:
+            raise sol.error("eta_a", f"must lie in (0, 1], got {eta_a}")
+        std = feat.vector(f"error_std_{platform}", len(q))
+        if np.any(std <= 0):
+            raise feat.error(f"error_std_{platform}", "must be positive")
+        return cls(Q_x=q, R=np.diag(r), q_lift=cost.number("q_lift", min=0.0), gamma=gamma,
+                   horizon_s=hor.number("seconds", positive=True), i_max=sol.integer("i_max", min=1),
+                   tol=sol.number("tol", min=0.0), eta_a=eta_a, divergence=sol.number("divergence", positive=True),
+                   error_std=std, samples=feat.integer("samples", min=1), size=feat.integer("size", min=1),
+                   nu=feat.number("nu", positive=True), ell_factor=feat.number("ell_factor", positive=True),
+                   seed=feat.integer("seed", min=0), mu=bar.number("mu", min=0.0),
+                   barrier_length=bar.number("length", positive=True), l_safe=bar.number("l_safe", min=0.0),
+                   max_threats=bar.integer("max_threats", min=0), end_margin=rep.number("end_margin", min=0.0),
+                   velocity_change=rep.number("velocity_change", positive=True),
+                   refit_every=comp.integer("refit_every", 100, min=1),
+                   refit_min_samples=comp.integer("min_samples", 60, min=1))
+
+
+class HorizonSolver(Protocol):
+    """What VF-LPC needs of a horizon solver (Eb-RHRL or a baseline QP)."""
+
+    def solve(self, problem: HorizonProblem, barrier: HorizonBarrier | None): ...
+
+    def shift(self) -> None: ...
+
+    def reset(self) -> None: ...
+
+
+def rl_features(model: LiftedLinearModel, error_std: np.ndarray, v_max: float, samples: int, size: int,
+                nu: float, ell_factor: float, seed: int) -> KernelFeatures:
+    """The RL dictionary: physical errors ~ N(0, error_std) at random reference states (speed up to
+    v_max along the body x, small rates), lifted; ALD over them, length scales ell_factor * std."""
+    rng = np.random.default_rng(seed)
+    ref = np.zeros((samples, model.n_x))
+    names = model.state_names
+    if "vx" in names:
+        ref[:, names.index("vx")] = rng.uniform(0.0, v_max, samples)
+    if "omega" in names:
+        ref[:, names.index("omega")] = rng.uniform(-0.3, 0.3, samples)
+    x = ref + rng.normal(size=ref.shape) * error_std
+    err = (model.lift(x) - model.lift(ref))[:, :-1]
+    ell = ell_factor * np.maximum(err.std(axis=0), 1e-3)
+    return KernelFeatures.from_samples(err, ell, nu, size)
+
+
+class VFLPC:
+    """Algorithm 1 (module docstring). ``planner``: a guidance planner (2-D or 3-D) on the
+    reference path; ``model``: the lifted Koopman model; ``limits``: actuator limits (per step
+    for the rate); ``body_radius`` and ``safety_margin``: the safety distance of the barrier and
+    the game region; ``solver``: a horizon solver (default: Eb-RHRL); ``compensator``: the online
+    GP (None: w/o ML)."""
+
+    name = "vflpc"
+
+    def __init__(self, planner, model: LiftedLinearModel, params: VFLPCParams, limits: Limits,
+                 body_radius: float, safety_margin: float, solver: HorizonSolver | None = None,
+                 compensator: OnlineCompensator | None = None, name: str = "vflpc") -> None:
+        self.planner, self.model, self.params, self.limits = planner, model, params, limits
+        self.name = name
+        self.dt = model.dt
+        self.N = max(1, int(round(params.horizon_s / self.dt)))
+        self.dim = planner.dim
+        A, B = model.A[:-1, :-1], model.B[:-1]
+        Q = np.diag(np.concatenate([params.Q_x, np.full(model.n_K - 1 - model.n_x, params.q_lift)]))
+        g = np.sqrt(params.gamma)
+        P = sl.solve_discrete_are(g * A, g * B, Q, params.R)
+        self.K_terminal = np.linalg.solve(params.R + params.gamma * B.T @ P @ B, params.gamma * B.T @ P @ A)
+        self.errors = ErrorModel(model, params.Q_x, params.q_lift, params.R, params.gamma, P, self.N, limits,
+                                 compensator.comp if compensator is not None else None)
+        if solver is None:
+            feats = rl_features(model, params.error_std, planner.v_desired, params.samples, params.size,
+                                params.nu, params.ell_factor, params.seed)
+            solver = EbRHRL(A, B, Q, params.R, P, params.gamma, feats, self.N, params.eta_a, params.i_max, params.tol)
+        self.solver, self.compensator = solver, compensator
+        self.body_radius, self.safety_margin = float(body_radius), float(safety_margin)
+        self.reset()
+
+    # ------------------------------------------------------------------ protocol
+    def reset(self) -> None:
+        self.solver.reset()
+        self._plan = None
+        self._prepared = None
+        self._signature: dict[str, np.ndarray] = {}
+        self._s = None
+        self._u_prev: np.ndarray | None = None
+        self._last: tuple[TickFrame, np.ndarray] | None = None
+        self._since_refit = 0
+        self.fallbacks = 0
+        self.replans = 0
+        self.replan_failures = 0
+        self.last_info = None
+        self.last_threats: tuple[str, ...] = ()
+        self.refits = 0
+
+    def step(self, state: np.ndarray, t: float, obstacles: Sequence[ObstacleState] = ()) -> np.ndarray:
+        state = np.asarray(state, float)
+        if state.shape != (self.model.n_x,) or not np.all(np.isfinite(state)):
+            raise ValueError(f"state must be {self.model.n_x} finite numbers, got {state!r}")
+        obstacles = tuple(obstacles)
+        for o in obstacles:
+            if not (np.all(np.isfinite(o.center)) and np.all(np.isfinite(o.velocity))) or o.center.shape != (self.dim,):
+                raise ValueError(f"obstacle {o.id!r}: centre and velocity must be {self.dim} finite numbers")
+        pos, vel = self._position(state), self._velocity(state)
+        self._s = self.planner.path.project(pos, self._s).s
+        self._guidance(pos, vel, state, t, obstacles)
+        ref = self._reference(t)
+        frame = self.errors.frame(state, ref)
+        self._observe(frame)
+        u_prev = self._u_prev if self._u_prev is not None else np.clip(np.zeros(self.model.n_u), self.limits.u_min,
+                                                                          self.limits.u_max)
+        gp = self.compensator.model if self.compensator is not None else None
+        problem = self.errors.problem(frame, u_prev, gp)
+        barrier = self._barrier(frame, pos, vel, t, obstacles)
+        u_tilde0 = self._solve(problem, barrier)
+        u = problem.u_ref[0] + u_tilde0
+        u = np.clip(u, self.limits.u_min, self.limits.u_max)
+        u = np.clip(u, u_prev - self.limits.du_max, u_prev + self.limits.du_max)
+        self.solver.shift()
+        self._u_prev = u
+        self._last = (frame, u)
+        return u
+
+    def background(self) -> None:
+        """Worker work: refit the GP when enough samples have come in since the last refit."""
+        c = self.compensator
+        if c is None or self._since_refit < self.params.refit_every or c.n_buffered < self.params.refit_min_samples:
+            return
+        self._since_refit = 0
+        c.refit()
+        self.refits += 1
+
+    # ------------------------------------------------------------------ pieces
+    def _position(self, state: np.ndarray) -> np.ndarray:
+        return state[list(self.errors.layout.position)]
+
+    def _velocity(self, state: np.ndarray) -> np.ndarray:
+        names = self.model.state_names
+        if self.errors.layout.kind == "planar":
+            psi, vx, vy = state[self.errors.layout.heading], state[names.index("vx")], state[names.index("vy")]
+            return np.array([vx * np.cos(psi) - vy * np.sin(psi), vx * np.sin(psi) + vy * np.cos(psi)])
+        return state[[names.index(n) for n in ("vx", "vy", "vz")[: self.dim]]]
+
+    def _changed(self, obstacles: Sequence[ObstacleState]) -> bool:
+        sig = {o.id: o.velocity for o in obstacles}
+        if sig.keys() != self._signature.keys():
+            return True
+        return any(np.linalg.norm(sig[k] - self._signature[k]) > self.params.velocity_change for k in sig)
+
+    def _guidance(self, pos, vel, state, t: float, obstacles) -> None:
+        plan = self._plan
+        left = -np.inf if plan is None else plan.trajectory.t[-1] - t
+        finished = plan is not None and plan.reached and self._prepared is not None and self._prepared.ends_path
+        due = plan is None or self._changed(obstacles) or (
+            not finished and left < self.N * self.dt + self.params.end_margin)
+        if not due:
+            return
+        statics = [o for o in obstacles if not o.moving]
+        movers = [o for o in obstacles if o.moving]
+        try:
+            prepared = self.planner.prepare(self._s, statics)
+            speed = float(np.linalg.norm(vel))
+            if self.dim == 2:
+                new = self.planner.plan(prepared, pos, t, speed, movers, heading=float(state[self.errors.layout.heading]))
+            else:
+                new = self.planner.plan(prepared, pos, t, speed, movers)
+        except GuidanceError as exc:
+            if plan is None:
+                raise
+            self.replan_failures += 1
+            log.warning("event=replan_failed t=%.2f reason=%s", t, exc)
+            return
+        self._plan, self._prepared = new, prepared
+        self._signature = {o.id: o.velocity for o in obstacles}
+        self.replans += 1
+
+    def _reference(self, t: float) -> np.ndarray:
+        """World reference states (N + 1, n_x) at t + tau dt, in the model's state order."""
+        traj = self._plan.trajectory
+        smp = traj.sample(t + self.dt * np.arange(self.N + 1))
+        names = self.model.state_names
+        out = np.zeros((self.N + 1, self.model.n_x))
+        if self.errors.layout.kind == "planar":
+            cols = {"X": smp["pos"][:, 0], "Y": smp["pos"][:, 1], "psi": smp["psi"], "yaw": smp["psi"],
+                    "vx": smp["v"], "omega": smp["omega"]}
+        else:
+            tangent = np.gradient(smp["pos"], axis=0)
+            tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
+            v = tangent * smp["v"][:, None]
+            cols = {"X": smp["pos"][:, 0], "Y": smp["pos"][:, 1], "Z": smp["pos"][:, 2],
+                    "vx": v[:, 0], "vy": v[:, 1], "vz": v[:, 2]}
+        for j, name in enumerate(names):
+            if name in cols:
+                out[:, j] = cols[name]
+        return out
+
+    def _barrier(self, frame: TickFrame, pos, vel, t: float, obstacles) -> HorizonBarrier:
+        idx = np.array(self.errors.layout.position)
+        p_ref = frame.x_r[:, idx]
+        p = self.params
+        if not obstacles or p.mu == 0.0 or p.max_threats == 0:
+            return no_barrier(idx, p_ref)
+        obstacles = [o for o in obstacles if o.moving]      # static obstacles are the guidance's
+        if not obstacles:
+            return no_barrier(idx, p_ref)
+        grow = self.body_radius + self.safety_margin
+        centers = np.array([o.center_at(t) for o in obstacles])
+        l = np.array([o.shape.bounding_radius() for o in obstacles]) + grow
+        mask = threats(pos, vel, centers, np.array([o.velocity for o in obstacles]), l, p.l_safe)
+        chosen = sorted(np.flatnonzero(mask), key=lambda i: np.linalg.norm(centers[i] - pos))[: p.max_threats]
+        self.last_threats = tuple(obstacles[i].id for i in chosen)
+        if not chosen:
+            return no_barrier(idx, p_ref)
+        times = t + self.dt * np.arange(self.N + 1)
+        p_world = self._reference_positions_world(frame)
+        xs, ns = [], []
+        for i in chosen:
+            x_p, n_p = safety_points(obstacles[i], p_world, times, grow)
+            xs.append(self.errors.to_window(frame, x_p))
+            ns.append(self.errors.to_window(frame, n_p, vectors=True))
+        return HorizonBarrier(idx, p_ref, np.array(xs), np.array(ns), np.full(len(chosen), p.mu), p.barrier_length)
+
+    def _reference_positions_world(self, frame: TickFrame) -> np.ndarray:
+        traj = self._plan.trajectory
+        idx = list(self.errors.layout.position)
+        # the reference positions in the world are those the window frame was built from
+        smp_pos = frame.x_r[:, idx]
+        lay = self.errors.layout
+        if lay.kind == "position":
+            return smp_pos + frame.origin[idx]
+        psi0 = frame.origin[lay.heading]
+        c, s = np.cos(psi0), np.sin(psi0)
+        return frame.origin[idx] + np.stack([c * smp_pos[:, 0] - s * smp_pos[:, 1], s * smp_pos[:, 0] + c * smp_pos[:, 1]], 1)
+
+    def _solve(self, problem: HorizonProblem, barrier: HorizonBarrier) -> np.ndarray:
+        span = self.limits.u_max - self.limits.u_min
+        bound = self.params.divergence * np.where(np.isfinite(span), span, 1e6)
+        try:
+            u_tilde, info = self.solver.solve(problem, barrier)
+            self.last_info = info
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            log.warning("event=solver_error reason=%s", exc)
+            u_tilde = None
+        if u_tilde is None or not np.all(np.isfinite(u_tilde[0])) or np.any(np.abs(u_tilde[0]) > bound):
+            self.fallbacks += 1
+            self.solver.reset()
+            return -self.K_terminal @ problem.x0
+        return u_tilde[0]
+
+    def _observe(self, frame: TickFrame) -> None:
+        """Offer the last transition (previous lifted state, applied command, current state in the
+        previous window frame) to the GP."""
+        if self.compensator is None or self._last is None:
+            return
+        prev, u = self._last
+        pair = to_window_frame(np.vstack([prev.origin, frame.origin]), self.model.state_names)
+        U_next = self.model.lift(pair[1])
+        self.compensator.observe(prev.U, u, U_next)
+        self._since_refit += 1
