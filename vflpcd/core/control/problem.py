@@ -20,8 +20,9 @@ the Eb-RHRL solver carries):
 
 Constraints on the applied control u = u_r + u~: u_min <= u <= u_max, and
 |u_tau - u_{tau-1}| <= du_max (u_{-1} = u_prev). Obstacle half-planes G_tau x~_tau <= g_tau
-(rows of zeros are inactive) are the linearised keep-out constraints for the solvers with
-hard constraints (the OSQP Koopman-MPC); the Eb-RHRL solver uses the barrier instead.
+(rows of zeros are inactive) are the linearised keep-out constraints of the constrained
+solvers (the OSQP Koopman-MPC keeps them soft, with a penalised slack); the Eb-RHRL solver uses
+the barrier instead. The rows of step 0 involve only x~_0 = x0, which no control can change.
 """
 
 from __future__ import annotations
