@@ -315,9 +315,8 @@ class VFLPC:
         return HorizonBarrier(idx, p_ref, np.array(xs), np.array(ns), np.full(len(chosen), p.mu), p.barrier_length)
 
     def _reference_positions_world(self, frame: TickFrame) -> np.ndarray:
-        traj = self._plan.trajectory
+        """The reference positions (N + 1, d) back in the world frame."""
         idx = list(self.errors.layout.position)
-        # the reference positions in the world are those the window frame was built from
         smp_pos = frame.x_r[:, idx]
         lay = self.errors.layout
         if lay.kind == "position":
