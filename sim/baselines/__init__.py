@@ -16,6 +16,12 @@ def _pure_pursuit(scenario) -> Controller:
                        BicycleConfig.load(scenario.params), PurePursuitGains.load())
 
 
+def _nmpc_cbf(scenario) -> Controller:
+    from sim.baselines.nmpc_cbf import make_nmpc_cbf
+
+    return make_nmpc_cbf(scenario)
+
+
 def _pd_tracker(scenario) -> Controller:
     from sim.baselines.pd_tracker import PDGains, PDTracker
 
@@ -25,6 +31,7 @@ def _pd_tracker(scenario) -> Controller:
 # name -> (factory(scenario), platforms it drives)
 CONTROLLERS: dict[str, tuple[Callable[..., Controller], tuple[str, ...]]] = {
     "pure_pursuit": (_pure_pursuit, ("ground",)),
+    "nmpc_cbf": (_nmpc_cbf, ("ground",)),
     "pd_tracker": (_pd_tracker, ("aerial",)),
 }
 
