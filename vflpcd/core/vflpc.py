@@ -29,7 +29,6 @@ from dataclasses import dataclass
 from typing import Protocol, Sequence
 
 import numpy as np
-import scipy.linalg as sl
 
 from vflpcd.core.control.barrier import HorizonBarrier, no_barrier, safety_points
 from vflpcd.core.control.ebrhrl import EbRHRL, KernelFeatures
@@ -155,17 +154,13 @@ class VFLPC:
         self.dt = model.dt
         self.N = max(1, int(round(params.horizon_s / self.dt)))
         self.dim = planner.dim
-        A, B = model.A[:-1, :-1], model.B[:-1]
-        Q = np.diag(np.concatenate([params.Q_x, np.full(model.n_K - 1 - model.n_x, params.q_lift)]))
-        g = np.sqrt(params.gamma)
-        P = sl.solve_discrete_are(g * A, g * B, Q, params.R)
-        self.K_terminal = np.linalg.solve(params.R + params.gamma * B.T @ P @ B, params.gamma * B.T @ P @ A)
-        self.errors = ErrorModel(model, params.Q_x, params.q_lift, params.R, params.gamma, P, self.N, limits,
-                                 compensator.comp if compensator is not None else None)
+        self.errors = em = ErrorModel(model, params.Q_x, params.q_lift, params.R, params.gamma, self.N, limits,
+                                      compensator.comp if compensator is not None else None)
         if solver is None:
             feats = rl_features(model, params.error_std, planner.v_desired, params.samples, params.size,
                                 params.nu, params.ell_factor, params.seed)
-            solver = EbRHRL(A, B, Q, params.R, P, params.gamma, feats, self.N, params.eta_a, params.i_max, params.tol)
+            solver = EbRHRL(em.A, em.B, em.Q, em.R, em.P, em.gamma, feats, self.N, params.eta_a, params.i_max,
+                            params.tol)
         self.solver, self.compensator = solver, compensator
         self.body_radius, self.safety_margin = float(body_radius), float(safety_margin)
         self.reset()
@@ -200,12 +195,13 @@ class VFLPC:
         self._guidance(pos, vel, state, t, obstacles)
         ref = self._reference(t)
         frame = self.errors.frame(state, ref)
+        p_ref_world = ref[:, list(self.errors.layout.position)]
         self._observe(frame)
         u_prev = self._u_prev if self._u_prev is not None else np.clip(np.zeros(self.model.n_u), self.limits.u_min,
                                                                           self.limits.u_max)
         gp = self.compensator.model if self.compensator is not None else None
         problem = self.errors.problem(frame, u_prev, gp)
-        barrier = self._barrier(frame, pos, vel, t, obstacles)
+        barrier = self._barrier(frame, p_ref_world, pos, vel, t, obstacles)
         u_tilde0 = self._solve(problem, barrier)
         u = problem.u_ref[0] + u_tilde0
         u = np.clip(u, self.limits.u_min, self.limits.u_max)
@@ -288,7 +284,7 @@ class VFLPC:
                 out[:, j] = cols[name]
         return out
 
-    def _barrier(self, frame: TickFrame, pos, vel, t: float, obstacles) -> HorizonBarrier:
+    def _barrier(self, frame: TickFrame, p_world: np.ndarray, pos, vel, t: float, obstacles) -> HorizonBarrier:
         idx = np.array(self.errors.layout.position)
         p_ref = frame.x_r[:, idx]
         p = self.params
@@ -306,24 +302,12 @@ class VFLPC:
         if not chosen:
             return no_barrier(idx, p_ref)
         times = t + self.dt * np.arange(self.N + 1)
-        p_world = self._reference_positions_world(frame)
         xs, ns = [], []
         for i in chosen:
             x_p, n_p = safety_points(obstacles[i], p_world, times, grow)
             xs.append(self.errors.to_window(frame, x_p))
             ns.append(self.errors.to_window(frame, n_p, vectors=True))
         return HorizonBarrier(idx, p_ref, np.array(xs), np.array(ns), np.full(len(chosen), p.mu), p.barrier_length)
-
-    def _reference_positions_world(self, frame: TickFrame) -> np.ndarray:
-        """The reference positions (N + 1, d) back in the world frame."""
-        idx = list(self.errors.layout.position)
-        smp_pos = frame.x_r[:, idx]
-        lay = self.errors.layout
-        if lay.kind == "position":
-            return smp_pos + frame.origin[idx]
-        psi0 = frame.origin[lay.heading]
-        c, s = np.cos(psi0), np.sin(psi0)
-        return frame.origin[idx] + np.stack([c * smp_pos[:, 0] - s * smp_pos[:, 1], s * smp_pos[:, 0] + c * smp_pos[:, 1]], 1)
 
     def _solve(self, problem: HorizonProblem, barrier: HorizonBarrier) -> np.ndarray:
         span = self.limits.u_max - self.limits.u_min
@@ -337,7 +321,7 @@ class VFLPC:
         if u_tilde is None or not np.all(np.isfinite(u_tilde[0])) or np.any(np.abs(u_tilde[0]) > bound):
             self.fallbacks += 1
             self.solver.reset()
-            return -self.K_terminal @ problem.x0
+            return -self.errors.K_terminal @ problem.x0
         return u_tilde[0]
 
     def _observe(self, frame: TickFrame) -> None:

@@ -8,37 +8,10 @@ import pytest
 from sim.baselines import make_controller
 from sim.baselines.nmpc_cbf import NmpcCbf, NmpcCbfConfig, obstacle_discs
 from sim.runner import run_closed_loop
-from sim.scenarios import load_scenario
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.shapes import Box, Circle, Ellipse
 from vflpcd.errors import ConfigError
 from vflpcd.paths import config_dir
-
-SCENARIO = """
-name = "nmpc_line"
-platform = "ground"
-control_period = 0.05
-t_max = {t_max}
-[vehicle]
-plant = "dynamic_bicycle"
-[path]
-kind = "line"
-start = [0.0, 0.0]
-end = [{length}, 0.0]
-[start]
-position = [0.0, {y0}]
-speed = 5.0
-[speed]
-desired = 5.0
-a_lat_max = 3.0
-[goal]
-tolerance = 1.0
-[metrics]
-q1 = 1.0
-q2 = 1.0
-R = [[0.1, 0.0], [0.0, 1.0]]
-{obstacles}
-"""
 
 BLOCK = """
 [[obstacles]]
@@ -48,12 +21,6 @@ length = 2.0
 width = 1.0
 center = [25.0, -0.2]
 """
-
-
-def scenario(tmp_path, *, y0=0.0, length=60.0, t_max=20.0, obstacles=""):
-    f = tmp_path / "nmpc_line.toml"
-    f.write_text(SCENARIO.format(y0=y0, length=length, t_max=t_max, obstacles=obstacles))
-    return load_scenario(f)
 
 
 @pytest.fixture(scope="module")
@@ -70,8 +37,8 @@ def assert_commands_in_limits(commands, cfg, dt):
     assert np.all(np.abs(np.diff(delta)) <= lim.delta_rate_max * dt + 1e-9)
 
 
-def test_converges_to_a_straight_path_from_a_lateral_offset(tmp_path, config):
-    s = scenario(tmp_path, y0=0.5)
+def test_converges_to_a_straight_path_from_a_lateral_offset(line_scenario, config):
+    s = line_scenario("nmpc_line", y0=0.5)
     ctrl = make_controller("nmpc_cbf", s)
     assert isinstance(ctrl, NmpcCbf) and ctrl.N == round(config.horizon_seconds / s.control_period)
     rec = run_closed_loop(s, ctrl)
@@ -83,8 +50,8 @@ def test_converges_to_a_straight_path_from_a_lateral_offset(tmp_path, config):
     assert ctrl.failures == 0
 
 
-def test_passes_a_static_obstacle_on_the_path_without_contact(tmp_path, config):
-    s = scenario(tmp_path, length=50.0, obstacles=BLOCK)
+def test_passes_a_static_obstacle_on_the_path_without_contact(line_scenario, config):
+    s = line_scenario("nmpc_line", length=50.0, obstacles=BLOCK)
     ctrl = make_controller("nmpc_cbf", s)
     rec = run_closed_loop(s, ctrl)
     m = rec.metrics
@@ -96,8 +63,8 @@ def test_passes_a_static_obstacle_on_the_path_without_contact(tmp_path, config):
     assert ctrl.failures == 0
 
 
-def test_the_dcbf_holds_along_the_plan_of_one_solve(tmp_path, config):
-    s = scenario(tmp_path, length=60.0)
+def test_the_dcbf_holds_along_the_plan_of_one_solve(line_scenario, config):
+    s = line_scenario("nmpc_line", length=60.0)
     ctrl = NmpcCbf(s.path, s.v_desired, s.a_lat_max, s.control_period, s.footprint, config)
     obs = ObstacleState(id="post", shape=Circle(0.8), center=np.array([7.0, 0.4]), yaw=0.0,
                         velocity=np.array([-0.5, 0.0]), stamp=2.0)
@@ -121,8 +88,8 @@ def test_the_dcbf_holds_along_the_plan_of_one_solve(tmp_path, config):
     assert np.min(h[1:] - g * h[:-1]) < 1e-3      # and it is active: the post bends the plan
 
 
-def test_solver_failure_falls_back_to_the_shifted_plan_then_brakes(tmp_path, config, monkeypatch, caplog):
-    s = scenario(tmp_path)
+def test_solver_failure_falls_back_to_the_shifted_plan_then_brakes(line_scenario, config, monkeypatch, caplog):
+    s = line_scenario("nmpc_line")
     ctrl = NmpcCbf(s.path, s.v_desired, s.a_lat_max, s.control_period, s.footprint,
                    dataclasses.replace(config, max_iter=50))
     x = np.array([0.0, 0.3, 0.0, 5.0, 0.0, 0.0])
@@ -148,8 +115,8 @@ def test_solver_failure_falls_back_to_the_shifted_plan_then_brakes(tmp_path, con
     np.testing.assert_allclose(u, [lim.a_min, 0.0])
 
 
-def test_non_success_status_counts_as_a_failure(tmp_path, config, monkeypatch):
-    s = scenario(tmp_path)
+def test_non_success_status_counts_as_a_failure(line_scenario, config, monkeypatch):
+    s = line_scenario("nmpc_line")
     ctrl = NmpcCbf(s.path, s.v_desired, s.a_lat_max, s.control_period, s.footprint,
                    dataclasses.replace(config, max_iter=1))
     u = ctrl.step(np.array([0.0, 1.5, 0.4, 5.0, 0.0, 0.0]), 0.0)      # one iteration cannot converge

@@ -7,29 +7,7 @@ from sim.baselines import make_controller
 from sim.runner import run_closed_loop
 from sim.scenarios import load_scenario
 
-GROUND = """
-name = "corridor"
-platform = "ground"
-control_period = 0.05
-t_max = 30.0
-[vehicle]
-plant = "dynamic_bicycle"
-[path]
-kind = "line"
-start = [0.0, 0.0]
-end = [30.0, 0.0]
-[start]
-position = [0.0, 0.0]
-speed = 3.0
-[speed]
-desired = 3.0
-a_lat_max = 2.0
-[goal]
-tolerance = 1.0
-[metrics]
-q1 = 1.0
-q2 = 1.0
-R = [[0.1, 0.0], [0.0, 1.0]]
+CORRIDOR_OBSTACLES = """
 [[obstacles]]
 id = "block"
 shape = "box"
@@ -44,10 +22,12 @@ center = [20.0, 4.0]
 """
 
 
-def test_pure_pursuit_on_a_corridor_hits_the_block_and_reports_it(tmp_path):
-    f = tmp_path / "corridor.toml"
-    f.write_text(GROUND)
-    s = load_scenario(f)
+def corridor(line_scenario):
+    return line_scenario("corridor", length=30.0, speed=3.0, a_lat_max=2.0, t_max=30.0, obstacles=CORRIDOR_OBSTACLES)
+
+
+def test_pure_pursuit_on_a_corridor_hits_the_block_and_reports_it(line_scenario):
+    s = corridor(line_scenario)
     rec = run_closed_loop(s, make_controller("pure_pursuit", s))
     m = rec.metrics
     assert rec.outcome == "completed"
@@ -72,10 +52,8 @@ class NaNController:
         return np.array([np.nan, 0.0]) if t >= 1.0 else np.zeros(2)
 
 
-def test_a_non_finite_command_ends_the_run_as_diverged(tmp_path):
-    f = tmp_path / "corridor.toml"
-    f.write_text(GROUND)
-    rec = run_closed_loop(load_scenario(f), NaNController())
+def test_a_non_finite_command_ends_the_run_as_diverged(line_scenario):
+    rec = run_closed_loop(corridor(line_scenario), NaNController())
     assert rec.outcome == "diverged"
     assert rec.t[-1] == pytest.approx(1.0)
     assert np.all(np.isfinite(rec.state))

@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg as sl
 
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.dynamics.compensation import KoopmanCompensation
@@ -51,10 +52,12 @@ class ErrorModel:
     """Builds ``HorizonProblem``s for a lifted model with the constant observable last.
 
     Q_x (n_x,) weights of the physical states, q_lift the weight of each encoder observable,
-    R (n_u, n_u), gamma, P (n, n) terminal, N steps, limits; comp: the GP structure (or None)."""
+    R (n_u, n_u), gamma, N steps, limits; comp: the GP structure (or None). The terminal P (n, n)
+    solves the discounted DARE of the nominal error model, and K_terminal (n_u, n) is its LQR gain
+    (the fallback law u~ = -K_terminal x~)."""
 
     def __init__(self, model: LiftedLinearModel, Q_x: np.ndarray, q_lift: float, R: np.ndarray, gamma: float,
-                 P: np.ndarray, N: int, limits: Limits, comp: KoopmanCompensation | None = None) -> None:
+                 N: int, limits: Limits, comp: KoopmanCompensation | None = None) -> None:
         A, B = model.A, model.B
         e_last = np.zeros(model.n_K)
         e_last[-1] = 1.0
@@ -64,7 +67,11 @@ class ErrorModel:
         self.n = model.n_K - 1
         self.A, self.B = A[:-1, :-1], B[:-1]
         self.Q = np.diag(np.concatenate([np.asarray(Q_x, float), np.full(self.n - model.n_x, float(q_lift))]))
-        self.R, self.gamma, self.P = np.asarray(R, float), float(gamma), np.asarray(P, float)
+        self.R, self.gamma = np.asarray(R, float), float(gamma)
+        g = np.sqrt(self.gamma)
+        self.P = sl.solve_discrete_are(g * self.A, g * self.B, self.Q, self.R)
+        self.K_terminal = np.linalg.solve(self.R + self.gamma * self.B.T @ self.P @ self.B,
+                                          self.gamma * self.B.T @ self.P @ self.A)
         self._B_x_pinv = np.linalg.pinv(B[: model.n_x])
         self.layout = PoseLayout.of(model.state_names)
 
