@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.plants import make_plant
 from vflpcd.core.control.error_model import Limits
 from vflpcd.core.dynamics.compensation import KoopmanCompensation, OnlineCompensator
 from vflpcd.core.dynamics.koopman import load_koopman
@@ -38,6 +39,17 @@ def limits_for(scenario, dt: float) -> Limits:
     return Limits(np.full(3, -a), np.full(3, a), np.full(3, np.inf))
 
 
+def curvature_limit(scenario) -> float:
+    """The robot's geometric path-curvature limit: tan(delta_max) / L for the car, none (inf) for
+    the quadrotor."""
+    if scenario.platform != "ground":
+        return np.inf
+    from sim.plants.dynamic_bicycle import BicycleConfig
+
+    cfg = BicycleConfig.load(scenario.params)
+    return float(np.tan(cfg.limits.delta_max) / cfg.params.wheelbase)
+
+
 def compensator_for(model) -> OnlineCompensator:
     """GP on [vx, vy, omega] (B_d = [0_3 I_3 0]^T, paper section "Model Uncertainties Learning"),
     input z = [vx, vy, omega, rho_e, u]."""
@@ -57,7 +69,11 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
     model = load_koopman(config_dir() / "models" / MODELS[scenario.platform])
     planner_cls = GuidancePlanner if scenario.dim == 2 else GuidancePlanner3D
     planner = planner_cls(scenario.path, scenario.guidance, scenario.v_desired, scenario.a_lat_max,
-                          scenario.footprint.radius, model.dt)
+                          scenario.footprint.radius, model.dt, kappa_limit=curvature_limit(scenario))
+    if compensation and not np.isclose(scenario.control_period, model.dt):
+        raise ValueError(f"GP compensation learns one-model-step transitions: scenario {scenario.name!r} runs "
+                         f"every {scenario.control_period} s, the model steps {model.dt} s")
     return VFLPC(planner, model, params, limits_for(scenario, model.dt), scenario.footprint.radius,
                  scenario.guidance.safety_margin, solver=solver,
-                 compensator=compensator_for(model) if compensation else None, name=name)
+                 compensator=compensator_for(model) if compensation else None, name=name,
+                 state_names=make_plant(scenario, 0).state_names)

@@ -2,7 +2,9 @@
 
 Each control step k at t_k = k * control_period: the obstacle triggers are updated from
 the robot position, the controller maps (x_k, t_k, perceived obstacles) to u_k (its wall
-time is t_cal), everything is recorded, and the plant integrates u_k over one period.
+time is t_cal), everything is recorded, and the plant integrates u_k over one period. A
+controller with worker work (``background()``: VF-LPC's replans and GP refits, which the daemon
+runs on workers) does it after the plant step, outside t_cal; its wall time is t_background.
 The run ends when the robot's progress along the path reaches the goal (``completed``),
 when t_max is reached (``timeout``), or when the controller or the plant produces a
 non-finite value (``diverged``).
@@ -31,7 +33,8 @@ class RunRecord:
     angle (aerial); command (M, n_u) from the controller; applied (M, n_u) after actuator
     limits; t_cal (M,) s; ref_point (M, d) and ref_heading (M,) nearest path point and its
     tangent yaw; lateral (M,); progress (M,) arc length covered; obstacle_center
-    (M, n_obs, d); clearance (M, n_obs), NaN while an obstacle is absent.
+    (M, n_obs, d); clearance (M, n_obs), NaN while an obstacle is absent; t_background (M,) s
+    of worker work after each step (0 for a controller without any).
     """
 
     scenario: str
@@ -53,6 +56,7 @@ class RunRecord:
     progress: np.ndarray
     obstacle_center: np.ndarray
     clearance: np.ndarray
+    t_background: np.ndarray
     outcome: str
     t_com: float | None
     metrics: dict = field(default_factory=dict)
@@ -67,8 +71,9 @@ def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0) -
     n_steps = int(np.ceil(scenario.t_max / dt)) + 1
     rows: dict[str, list] = {k: [] for k in ("t", "state", "position", "velocity", "psi", "command", "applied",
                                              "t_cal", "ref_point", "ref_heading", "lateral", "progress",
-                                             "obstacle_center", "clearance")}
+                                             "obstacle_center", "clearance", "t_background")}
     s_prev, progress, outcome, t_com = None, 0.0, "timeout", None
+    background = getattr(controller, "background", None)
     for k in range(n_steps):
         t = k * dt
         x = plant.state
@@ -93,6 +98,7 @@ def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0) -
                            ("lateral", proj.lateral), ("progress", progress),
                            ("obstacle_center", centers), ("clearance", clear)):
             rows[key].append(value)
+        rows["t_background"].append(0.0)
 
         if progress >= scenario.goal_progress:
             outcome, t_com = "completed", t
@@ -104,6 +110,10 @@ def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0) -
             break
         plant.step(u, dt)
         rows["applied"].append(plant.applied_control)
+        if background is not None:
+            t0 = time.perf_counter_ns()
+            background()
+            rows["t_background"][-1] = (time.perf_counter_ns() - t0) * 1e-9
         if not np.all(np.isfinite(plant.state)):
             outcome = "diverged"
             break
@@ -127,6 +137,7 @@ def evaluate(record: RunRecord, scenario: Scenario) -> dict:
         psi=record.psi[ok], psi_r=record.ref_heading[ok], e_lat=record.lateral[ok],
         u_tilde=record.applied[ok], t_cal=record.t_cal, clearance=record.clearance,
         q1=w.q1, q2=w.q2, R=w.R, t_com=record.t_com)
+    metrics["t_background_max"] = float(np.max(record.t_background)) if len(record.t_background) else 0.0
     metrics["outcome"] = record.outcome
     metrics["steps"] = int(len(record.t))
     return metrics

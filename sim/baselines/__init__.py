@@ -22,6 +22,25 @@ def _nmpc_cbf(scenario) -> Controller:
     return make_nmpc_cbf(scenario)
 
 
+def _vflpc(scenario) -> Controller:
+    from sim.lpc import make_vflpc
+
+    return make_vflpc(scenario)
+
+
+def _vflpc_ml(scenario) -> Controller:
+    from sim.lpc import make_vflpc
+
+    return make_vflpc(scenario, compensation=True, name="vflpc_ml")
+
+
+def _koopman_mpc(scenario) -> Controller:
+    from sim.baselines.koopman_mpc import KoopmanMPC
+    from sim.lpc import load_params, make_vflpc
+
+    return make_vflpc(scenario, solver=KoopmanMPC(load_params(scenario.platform).max_threats), name="koopman_mpc")
+
+
 def _pd_tracker(scenario) -> Controller:
     from sim.baselines.pd_tracker import PDGains, PDTracker
 
@@ -33,6 +52,9 @@ CONTROLLERS: dict[str, tuple[Callable[..., Controller], tuple[str, ...]]] = {
     "pure_pursuit": (_pure_pursuit, ("ground",)),
     "nmpc_cbf": (_nmpc_cbf, ("ground",)),
     "pd_tracker": (_pd_tracker, ("aerial",)),
+    "vflpc": (_vflpc, ("ground", "aerial")),
+    "vflpc_ml": (_vflpc_ml, ("ground",)),
+    "koopman_mpc": (_koopman_mpc, ("ground", "aerial")),
 }
 
 DEFAULT_CONTROLLER = {"ground": "pure_pursuit", "aerial": "pd_tracker"}

@@ -90,12 +90,14 @@ Unconstrained problems match the finite-horizon LQR to < 1e-4 relative.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import osqp
 import scipy.sparse as sp
 
+from vflpcd.core.control.barrier import HorizonBarrier
 from vflpcd.core.control.problem import HorizonProblem
 
 _INF = 1e30  # OSQP_INFTY
@@ -467,6 +469,31 @@ class OSQPHorizonSolver:
             out[k] = uk - u_ref[k]
             prev = uk
         return out
+
+
+class KoopmanMPC:
+    """:class:`OSQPHorizonSolver` behind VF-LPC's horizon-solver protocol: the barrier's threatening
+    obstacles become the QP's soft half-planes (at most ``m``, the fixed sparsity pattern's width),
+    so the Koopman-MPC baseline sees the same reference, model, cost and threats as Eb-RHRL.
+    Its warm start is OSQP's own (shifted previous solution), so ``shift`` has nothing to do."""
+
+    def __init__(self, m: int, **options) -> None:
+        self.m = int(m)
+        self.qp = OSQPHorizonSolver(**options)
+
+    def solve(self, problem: HorizonProblem, barrier: HorizonBarrier | None):
+        if barrier is not None:
+            G, g = barrier.halfplanes(problem.n, self.m)
+        else:
+            G, g = np.zeros((problem.N + 1, self.m, problem.n)), np.zeros((problem.N + 1, self.m))
+        u = self.qp.solve(replace(problem, G=G, g=g))
+        return u, self.qp.last_status
+
+    def shift(self) -> None:
+        pass
+
+    def reset(self) -> None:
+        self.qp.reset()
 
 
 # ---------------------------------------------------------------------- timing

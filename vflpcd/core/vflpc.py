@@ -35,6 +35,7 @@ from vflpcd.core.control.ebrhrl import EbRHRL, KernelFeatures
 from vflpcd.core.control.error_model import ErrorModel, Limits, TickFrame
 from vflpcd.core.control.game_region import threats
 from vflpcd.core.control.problem import HorizonProblem
+from vflpcd.core.control.rate import RateForm
 from vflpcd.core.dynamics.compensation import OnlineCompensator
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
 from vflpcd.core.guidance.implicit import GuidanceError
@@ -71,13 +72,15 @@ class VFLPCParams:
     velocity_change: float
     refit_every: int = 100
     refit_min_samples: int = 60
+    R_rate: np.ndarray | None = None
 
     @classmethod
     def from_table(cls, root: Table, platform: str) -> "VFLPCParams":
         root.check_known({"cost", "horizon", "solver", "features", "barrier", "replan", "compensation"})
         cost, hor, sol = root.table("cost"), root.table("horizon"), root.table("solver")
         feat, bar, rep = root.table("features"), root.table("barrier"), root.table("replan")
-        cost.check_known({"q_ground", "r_ground", "q_aerial", "r_aerial", "q_lift", "gamma"})
+        cost.check_known({"q_ground", "r_ground", "r_rate_ground", "q_aerial", "r_aerial", "r_rate_aerial", "q_lift",
+                          "gamma"})
         hor.check_known({"seconds"})
         sol.check_known({"i_max", "tol", "eta_a", "divergence"})
         feat.check_known({"error_std_ground", "error_std_aerial", "samples", "size", "nu", "ell_factor", "seed"})
@@ -88,6 +91,9 @@ class VFLPCParams:
         q, r = cost.vector(f"q_{platform}"), cost.vector(f"r_{platform}")
         if np.any(q < 0) or np.any(r <= 0):
             raise cost.error(f"q_{platform}", "state weights must be >= 0 and control weights > 0")
+        r_rate = cost.vector(f"r_rate_{platform}", len(r)) if cost.has(f"r_rate_{platform}") else None
+        if r_rate is not None and np.any(r_rate <= 0):
+            raise cost.error(f"r_rate_{platform}", "increment weights must be > 0")
         gamma = cost.number("gamma", min=0.0)
         if not (0.0 < gamma <= 1.0):
             raise cost.error("gamma", f"must lie in (0, 1], got {gamma}")
@@ -107,7 +113,8 @@ class VFLPCParams:
                    max_threats=bar.integer("max_threats", min=0), end_margin=rep.number("end_margin", min=0.0),
                    velocity_change=rep.number("velocity_change", positive=True),
                    refit_every=comp.integer("refit_every", 100, min=1),
-                   refit_min_samples=comp.integer("min_samples", 60, min=1))
+                   refit_min_samples=comp.integer("min_samples", 60, min=1),
+                   R_rate=None if r_rate is None else np.diag(r_rate))
 
 
 class HorizonSolver(Protocol):
@@ -121,9 +128,10 @@ class HorizonSolver(Protocol):
 
 
 def rl_features(model: LiftedLinearModel, error_std: np.ndarray, v_max: float, samples: int, size: int,
-                nu: float, ell_factor: float, seed: int) -> KernelFeatures:
+                nu: float, ell_factor: float, seed: int, u_std: np.ndarray | None = None) -> KernelFeatures:
     """The RL dictionary: physical errors ~ N(0, error_std) at random reference states (speed up to
-    v_max along the body x, small rates), lifted; ALD over them, length scales ell_factor * std."""
+    v_max along the body x, small rates), lifted, with control deviations ~ N(0, u_std) appended
+    for the increment form; ALD over them, length scales ell_factor * std."""
     rng = np.random.default_rng(seed)
     ref = np.zeros((samples, model.n_x))
     names = model.state_names
@@ -133,6 +141,8 @@ def rl_features(model: LiftedLinearModel, error_std: np.ndarray, v_max: float, s
         ref[:, names.index("omega")] = rng.uniform(-0.3, 0.3, samples)
     x = ref + rng.normal(size=ref.shape) * error_std
     err = (model.lift(x) - model.lift(ref))[:, :-1]
+    if u_std is not None:
+        err = np.hstack([err, rng.normal(size=(samples, len(u_std))) * u_std])
     ell = ell_factor * np.maximum(err.std(axis=0), 1e-3)
     return KernelFeatures.from_samples(err, ell, nu, size)
 
@@ -142,25 +152,39 @@ class VFLPC:
     reference path; ``model``: the lifted Koopman model; ``limits``: actuator limits (per step
     for the rate); ``body_radius`` and ``safety_margin``: the safety distance of the barrier and
     the game region; ``solver``: a horizon solver (default: Eb-RHRL); ``compensator``: the online
-    GP (None: w/o ML)."""
+    GP (None: w/o ML); ``state_names``: the platform's state order (default the model's), of which
+    the model's states are picked by name (the quadrotor's 13 -> X, Y, Z, vx, vy, vz)."""
 
     name = "vflpc"
 
     def __init__(self, planner, model: LiftedLinearModel, params: VFLPCParams, limits: Limits,
                  body_radius: float, safety_margin: float, solver: HorizonSolver | None = None,
-                 compensator: OnlineCompensator | None = None, name: str = "vflpc") -> None:
+                 compensator: OnlineCompensator | None = None, name: str = "vflpc",
+                 state_names: Sequence[str] | None = None) -> None:
         self.planner, self.model, self.params, self.limits = planner, model, params, limits
+        self.state_names = tuple(state_names) if state_names is not None else tuple(model.state_names)
+        missing = [n for n in model.state_names if n not in self.state_names]
+        if missing:
+            raise ValueError(f"the platform state {self.state_names} lacks the model's {missing}")
+        self._select = [self.state_names.index(n) for n in model.state_names]
         self.name = name
         self.dt = model.dt
         self.N = max(1, int(round(params.horizon_s / self.dt)))
         self.dim = planner.dim
         self.errors = em = ErrorModel(model, params.Q_x, params.q_lift, params.R, params.gamma, self.N, limits,
                                       compensator.comp if compensator is not None else None)
+        self.rate = None
         if solver is None:
+            u_std = None
+            A, B, Q, R, P = em.A, em.B, em.Q, em.R, em.P
+            if params.R_rate is not None:
+                self.rate = rf = RateForm.of(em.A, em.B, em.Q, em.R, params.R_rate, em.gamma)
+                A, B, Q, R, P = rf.A, rf.B, rf.Q, rf.R, rf.P
+                span = limits.u_max - limits.u_min
+                u_std = 0.25 * np.where(np.isfinite(span), span, 1.0)
             feats = rl_features(model, params.error_std, planner.v_desired, params.samples, params.size,
-                                params.nu, params.ell_factor, params.seed)
-            solver = EbRHRL(em.A, em.B, em.Q, em.R, em.P, em.gamma, feats, self.N, params.eta_a, params.i_max,
-                            params.tol)
+                                params.nu, params.ell_factor, params.seed, u_std)
+            solver = EbRHRL(A, B, Q, R, P, em.gamma, feats, self.N, params.eta_a, params.i_max, params.tol)
         self.solver, self.compensator = solver, compensator
         self.body_radius, self.safety_margin = float(body_radius), float(safety_margin)
         self.reset()
@@ -175,6 +199,7 @@ class VFLPC:
         self._u_prev: np.ndarray | None = None
         self._last: tuple[TickFrame, np.ndarray] | None = None
         self._since_refit = 0
+        self._pending = None
         self.fallbacks = 0
         self.replans = 0
         self.replan_failures = 0
@@ -184,8 +209,9 @@ class VFLPC:
 
     def step(self, state: np.ndarray, t: float, obstacles: Sequence[ObstacleState] = ()) -> np.ndarray:
         state = np.asarray(state, float)
-        if state.shape != (self.model.n_x,) or not np.all(np.isfinite(state)):
-            raise ValueError(f"state must be {self.model.n_x} finite numbers, got {state!r}")
+        if state.shape != (len(self.state_names),) or not np.all(np.isfinite(state)):
+            raise ValueError(f"state must be {len(self.state_names)} finite numbers {self.state_names}, got {state!r}")
+        state = state[self._select]
         obstacles = tuple(obstacles)
         for o in obstacles:
             if not (np.all(np.isfinite(o.center)) and np.all(np.isfinite(o.velocity))) or o.center.shape != (self.dim,):
@@ -202,7 +228,11 @@ class VFLPC:
         gp = self.compensator.model if self.compensator is not None else None
         problem = self.errors.problem(frame, u_prev, gp)
         barrier = self._barrier(frame, p_ref_world, pos, vel, t, obstacles)
-        u_tilde0 = self._solve(problem, barrier)
+        if self.rate is not None:
+            increment = self.rate.problem(problem)
+            u_tilde0 = self.rate.deviation(increment.x0, self._solve(increment, barrier, self.rate.K_terminal))
+        else:
+            u_tilde0 = self._solve(problem, barrier, self.errors.K_terminal)
         u = problem.u_ref[0] + u_tilde0
         u = np.clip(u, self.limits.u_min, self.limits.u_max)
         u = np.clip(u, u_prev - self.limits.du_max, u_prev + self.limits.du_max)
@@ -212,7 +242,11 @@ class VFLPC:
         return u
 
     def background(self) -> None:
-        """Worker work: refit the GP when enough samples have come in since the last refit."""
+        """Worker work, outside the control tick: the replan that the last step found due (the next
+        step uses its result), and the GP refit when enough samples have come in since the last."""
+        if self._pending is not None:
+            pending, self._pending = self._pending, None
+            self._replan(*pending)
         c = self.compensator
         if c is None or self._since_refit < self.params.refit_every or c.n_buffered < self.params.refit_min_samples:
             return
@@ -238,6 +272,7 @@ class VFLPC:
         return any(np.linalg.norm(sig[k] - self._signature[k]) > self.params.velocity_change for k in sig)
 
     def _guidance(self, pos, vel, state, t: float, obstacles) -> None:
+        """Replan now if there is no reference yet, else leave a due replan to ``background``."""
         plan = self._plan
         left = -np.inf if plan is None else plan.trajectory.t[-1] - t
         finished = plan is not None and plan.reached and self._prepared is not None and self._prepared.ends_path
@@ -245,13 +280,21 @@ class VFLPC:
             not finished and left < self.N * self.dt + self.params.end_margin)
         if not due:
             return
+        heading = float(state[self.errors.layout.heading]) if self.dim == 2 else None
+        if plan is None:
+            self._replan(pos, vel, heading, t, obstacles)
+        else:
+            self._pending = (pos, vel, heading, t, obstacles)
+
+    def _replan(self, pos, vel, heading: float | None, t: float, obstacles) -> None:
+        plan = self._plan
         statics = [o for o in obstacles if not o.moving]
         movers = [o for o in obstacles if o.moving]
         try:
             prepared = self.planner.prepare(self._s, statics)
             speed = float(np.linalg.norm(vel))
-            if self.dim == 2:
-                new = self.planner.plan(prepared, pos, t, speed, movers, heading=float(state[self.errors.layout.heading]))
+            if heading is not None:
+                new = self.planner.plan(prepared, pos, t, speed, movers, heading=heading)
             else:
                 new = self.planner.plan(prepared, pos, t, speed, movers)
         except GuidanceError as exc:
@@ -309,7 +352,8 @@ class VFLPC:
             ns.append(self.errors.to_window(frame, n_p, vectors=True))
         return HorizonBarrier(idx, p_ref, np.array(xs), np.array(ns), np.full(len(chosen), p.mu), p.barrier_length)
 
-    def _solve(self, problem: HorizonProblem, barrier: HorizonBarrier) -> np.ndarray:
+    def _solve(self, problem: HorizonProblem, barrier: HorizonBarrier, K_terminal: np.ndarray) -> np.ndarray:
+        """The solver's first input of ``problem``; the terminal LQR law -K_terminal x0 on failure."""
         span = self.limits.u_max - self.limits.u_min
         bound = self.params.divergence * np.where(np.isfinite(span), span, 1e6)
         try:
@@ -321,7 +365,7 @@ class VFLPC:
         if u_tilde is None or not np.all(np.isfinite(u_tilde[0])) or np.any(np.abs(u_tilde[0]) > bound):
             self.fallbacks += 1
             self.solver.reset()
-            return -self.errors.K_terminal @ problem.x0
+            return -K_terminal @ problem.x0
         return u_tilde[0]
 
     def _observe(self, frame: TickFrame) -> None:

@@ -9,7 +9,7 @@ import numpy as np
 from vflpcd.tomlread import Table
 
 _POSITIVE = ("k_p", "k_r", "l1", "l2", "k_c", "beta", "grid_resolution", "corridor", "epsilon", "reactive_margin",
-             "horizon", "a_accel", "a_decel", "virtual_buffer")
+             "horizon", "a_accel", "a_decel", "virtual_buffer", "curvature_use")
 
 
 @dataclass(frozen=True)
@@ -43,6 +43,7 @@ class GuidanceParams:
     a_decel: float
     virtual: str
     virtual_buffer: float
+    curvature_use: float
     virtual_obstacles: tuple[VirtualObstacleSpec, ...] = ()
 
     @classmethod

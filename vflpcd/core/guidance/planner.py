@@ -16,7 +16,9 @@
    path's entry into R_actl (beyond the paper, whose remark 2 alone leaves a virtual obstacle
    acting on a robot that was turned past R_actl without entering it).
 4. The static part of chi_c is evaluated on a grid; eq. (xi_r) is integrated from the robot.
-5. The integrated points are smoothed (Gaussian, ``smoothing`` m) and speed-planned.
+5. The integrated points are smoothed (Gaussian, ``smoothing`` m); where their curvature exceeds
+   ``curvature_use`` times the robot's geometric limit (``kappa_limit``: tan(delta_max) / L for a
+   car) they are faired (``fairing.py``); then they are speed-planned.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
+from vflpcd.core.guidance.fairing import fair_path
 from vflpcd.core.guidance.field import ActualTerm, GuidanceField, VirtualTerm
 from vflpcd.core.guidance.grid import FieldGrid, Integration, integrate
 from vflpcd.core.guidance.implicit import E, GraphPath, GuidanceError, ObstacleImplicit, graph_horizon
@@ -76,7 +79,7 @@ class PlannerBase:
     dim = 2
 
     def __init__(self, path: ReferencePath, params: GuidanceParams, v_desired: float, a_lat_max: float,
-                 body_radius: float, control_period: float) -> None:
+                 body_radius: float, control_period: float, kappa_limit: float = np.inf) -> None:
         if path.dim != self.dim:
             raise GuidanceError(f"{type(self).__name__} needs a {self.dim}-D path, got a {path.dim}-D one")
         for name, value in (("v_desired", v_desired), ("a_lat_max", a_lat_max), ("body_radius", body_radius),
@@ -85,7 +88,10 @@ class PlannerBase:
                 raise GuidanceError(f"{name} must be positive and finite, got {value}")
         self.path, self.params = path, params
         self.v_desired, self.a_lat_max = v_desired, a_lat_max
+        if not kappa_limit > 0:
+            raise GuidanceError(f"kappa_limit must be positive (inf: none), got {kappa_limit}")
         self.body_radius, self.dt = body_radius, control_period
+        self.kappa_max = params.curvature_use * kappa_limit
 
     def implicit(self, o: ObstacleState) -> ObstacleImplicit:
         """varphi_i of an obstacle: Q at body radius + safety margin, R reactive_margin further out."""
@@ -109,14 +115,33 @@ class PlannerBase:
         """Smooth raw (K, d) with the configured std, halving it (down to none) while the smoothed
         points would cut into a repulsive boundary (moving obstacles at the points' times)."""
         p = self.params
-        k = np.arange(len(raw))
-        t = t0 + k * p.beta / self.v_desired if times is None else np.interp(k, np.arange(len(times)), times)
+        t = self._point_times(len(raw), t0, times)
         sigma = p.smoothing / p.beta
         while True:
             xy = smooth_path(raw, sigma) if sigma >= 0.5 else raw
             if sigma < 0.5 or all(np.all(self._values(term.implicit, xy, t) > term.implicit.c) for term in terms):
                 return xy
             sigma /= 2.0
+
+    def _point_times(self, n: int, t0: float, times: np.ndarray | None) -> np.ndarray:
+        """Times at which the n integrated points are reached: the step times of the last pass, or
+        (first pass) at v_desired."""
+        k = np.arange(n)
+        return t0 + k * self.params.beta / self.v_desired if times is None else np.interp(k, np.arange(len(times)), times)
+
+    def faired(self, xy: np.ndarray, terms, t0: float, times: np.ndarray | None,
+               heading: np.ndarray | None = None, pin_end: bool = False) -> np.ndarray:
+        """xy (K, d) with its curvature brought within kappa_max around the terms' repulsive regions,
+        leaving the start along ``heading`` (d,) when given, ending where it ends with ``pin_end``."""
+        def obstacles(pts: np.ndarray, t: np.ndarray):
+            out = []
+            for term in terms:  # a moving centre c(t): varphi(p, t) = varphi(p - v (t - stamp), stamp)
+                o = term.implicit
+                v, g = o.value_grad(pts - (t[:, None] - o.stamp) * o.velocity, o.stamp)
+                out.append((v, g, o.c))
+            return out
+
+        return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, obstacles, heading, pin_end)
 
     @staticmethod
     def _values(o: ObstacleImplicit, xy: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -241,8 +266,10 @@ class GuidancePlanner(PlannerBase):
                                      speed=max(v0, 0.5 * self.v_desired), heading=heading, step_times=step_times)
         times = step_times if step_times is not None and len(step_times) else None
         xy = self.safe_smooth(res.xy, field.statics + field.movers, t0, times)
+        goal = prepared.ends_path and res.reached
+        xy = self.faired(xy, field.statics + field.movers, t0, times, heading, pin_end=goal)
         s, kappa, v = plan_speed(xy, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
-                                 v_end=0.0 if (prepared.ends_path and res.reached) else None)
+                                 v_end=0.0 if goal else None)
         return res, xy, s, kappa, v
 
 

@@ -1,0 +1,62 @@
+"""The increment (rate-aware) form of the horizon problem, and Eb-RHRL on it."""
+
+import numpy as np
+import scipy.linalg as sl
+
+from vflpcd.core.control.ebrhrl import EbRHRL, KernelFeatures
+from vflpcd.core.control.problem import HorizonProblem, finite_horizon_lqr
+from vflpcd.core.control.rate import RateForm
+
+N, n, n_u = 12, 4, 2
+
+
+def _problem(rng) -> HorizonProblem:
+    A = np.eye(n) + 0.1 * rng.normal(size=(N, n, n))
+    B = 0.2 * rng.normal(size=(N, n, n_u))
+    inf = np.full(n_u, np.inf)
+    return HorizonProblem(A=A, B=B, c=0.05 * rng.normal(size=(N, n)), x0=rng.normal(size=n),
+                          Q=np.diag(rng.uniform(0.5, 2.0, n)), R=np.diag([0.3, 0.7]), P=np.eye(n), gamma=0.95,
+                          u_ref=rng.normal(size=(N, n_u)), u_min=-inf, u_max=inf, du_max=inf,
+                          u_prev=rng.normal(size=n_u), G=np.zeros((N + 1, 1, n)), g=np.zeros((N + 1, 1)))
+
+
+def test_the_increment_form_predicts_what_the_original_does():
+    rng = np.random.default_rng(0)
+    p = _problem(rng)
+    rf = RateForm.of(p.A[0], p.B[0], p.Q, p.R, np.diag([1.0, 50.0]), p.gamma)
+    z = rf.problem(p)
+    v = rng.normal(size=(N, n_u))
+    u_tilde = (p.u_prev - p.u_ref[0]) + np.cumsum(v, axis=0)     # u~_tau = u~_{-1} + v_0 + .. + v_tau
+    x = p.rollout(u_tilde)
+    xz = z.rollout(v)
+    np.testing.assert_allclose(xz[:, :n], x, atol=1e-12)
+    np.testing.assert_allclose(xz[1:, n:], u_tilde, atol=1e-12)
+    np.testing.assert_allclose(rf.deviation(z.x0, v[0]), u_tilde[0])
+    # stage cost: x~' Q x~ + u~_{tau-1}' R u~_{tau-1} + v' R_rate v
+    prev = np.vstack([p.u_prev - p.u_ref[0], u_tilde[:-1]])
+    stages = (np.einsum("ti,ij,tj->t", x[:-1], p.Q, x[:-1]) + np.einsum("ti,ij,tj->t", prev, p.R, prev)
+              + np.einsum("ti,ij,tj->t", v, rf.R, v))
+    terminal = xz[-1] @ rf.P @ xz[-1]
+    assert np.isclose(z.cost(v), np.sum(p.gamma ** np.arange(N) * stages) + p.gamma ** N * terminal)
+    assert z.G.shape == (N + 1, 1, n + n_u) and np.all(z.G[..., n:] == 0.0)
+
+
+def test_eb_rhrl_on_the_increment_form_is_its_finite_horizon_lqr():
+    rng = np.random.default_rng(1)
+    A = np.eye(n) + 0.1 * rng.normal(size=(n, n))
+    B = 0.2 * rng.normal(size=(n, n_u))
+    Q, R = np.diag(rng.uniform(0.5, 2.0, n)), np.diag([0.3, 0.7])
+    rf = RateForm.of(A, B, Q, R, np.diag([2.0, 20.0]), 1.0)
+    assert np.allclose(rf.P, sl.solve_discrete_are(rf.A, rf.B, rf.Q, rf.R))
+    feats = KernelFeatures.from_samples(rng.normal(size=(300, n + n_u)), np.full(n + n_u, 5.0), 0.05, 16)
+    solver = EbRHRL(rf.A, rf.B, rf.Q, rf.R, rf.P, 1.0, feats, N, i_max=200, tol=1e-20)
+    inf = np.full(n_u, np.inf)
+    p = HorizonProblem(A=np.repeat(A[None], N, 0), B=np.repeat(B[None], N, 0), c=np.zeros((N, n)),
+                       x0=rng.normal(size=n), Q=Q, R=R, P=Q, gamma=1.0, u_ref=np.zeros((N, n_u)), u_min=-inf,
+                       u_max=inf, du_max=inf, u_prev=np.array([0.4, -0.2]), G=np.zeros((N + 1, 0, n)),
+                       g=np.zeros((N + 1, 0)))
+    z = rf.problem(p)
+    v, info = solver.solve(z)
+    v_lqr = -finite_horizon_lqr(rf.A, rf.B, rf.Q, rf.R, rf.P, N, 1.0)[0] @ z.x0
+    assert np.linalg.norm(v[0] - v_lqr) / np.linalg.norm(v_lqr) < 1e-3
+    assert info.converged

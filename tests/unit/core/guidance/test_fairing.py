@@ -1,0 +1,120 @@
+"""Fairing: the planned path's curvature bounded around the repulsive regions (fairing.py)."""
+
+import numpy as np
+import pytest
+
+from vflpcd.core.guidance.fairing import SPACING, _solve_convex, fair_path, half_planes
+from vflpcd.core.guidance.implicit import ObstacleImplicit
+from vflpcd.core.guidance.speed import menger_curvature
+from vflpcd.core.shapes import Circle
+
+
+def _obstacle(center, radius=1.0, velocity=(0.0, 0.0)):
+    return ObstacleImplicit.around("o", Circle(radius), np.asarray(center, float), 0.0, np.asarray(velocity, float),
+                                   0.0, reactive_distance=3.0, repulsive_distance=1.5)
+
+
+def _values(obstacles):
+    def f(pts, t):
+        out = []
+        for o in obstacles:
+            v, g = o.value_grad(pts - (t[:, None] - o.stamp) * o.velocity, o.stamp)
+            out.append((v, g, o.c))
+        return out
+    return f
+
+
+def _detour(obstacle, length=40.0, step=0.1):
+    """A path along y = 0 that jumps onto the repulsive boundary's circle where it would enter it:
+    clear, but with the boundary's curvature and kinks at both ends."""
+    x = np.arange(0.0, length, step)
+    y = np.zeros_like(x)
+    r = 1.0 + 1.5 + 0.05  # just outside Q: the circle of radius 1 grown by the repulsive distance
+    cx = obstacle.center[0]
+    inside = np.abs(x - cx) < r
+    y[inside] = np.sqrt(r ** 2 - (x[inside] - cx) ** 2) + obstacle.center[1]
+    return np.column_stack([x, np.maximum(y, 0.0)])
+
+
+def test_a_sharp_clear_path_is_faired_within_the_limit_and_stays_clear():
+    o = _obstacle([20.0, -0.5])
+    xy = _detour(o)
+    assert np.all(o.value(xy) > o.c)                     # the input is clear ...
+    assert menger_curvature(xy).max() > 0.5              # ... but far too sharp for a car
+    kappa_max = 0.14
+    out = fair_path(xy, np.arange(len(xy)) * 0.01, kappa_max, _values([o]), heading=np.array([1.0, 0.0]))
+    assert menger_curvature(out).max() <= kappa_max
+    assert np.all(o.value(out) > o.c)
+    np.testing.assert_allclose(out[0], xy[0], atol=1e-6)
+    d = out[1] - out[0]
+    assert abs(np.arctan2(d[1], d[0])) < 1e-4            # leaves along the robot's heading
+    assert np.max(np.linalg.norm(np.diff(out, axis=0), axis=1)) < 1.5 * SPACING
+
+
+def test_a_drivable_aligned_path_comes_back_unchanged():
+    xy = np.column_stack([np.linspace(0, 30, 301), 0.01 * np.linspace(0, 30, 301) ** 1.5])
+    out = fair_path(xy, np.zeros(len(xy)), 0.2, _values([]), heading=np.array([1.0, 0.0]))
+    assert out is xy
+
+
+def test_a_start_off_the_robot_heading_is_faired_to_it():
+    xy = np.column_stack([np.linspace(0, 30, 301), np.linspace(0, 30, 301)])   # 45 deg, no curvature
+    out = fair_path(xy, np.zeros(len(xy)), 0.2, _values([]), heading=np.array([1.0, 0.0]))
+    d = out[1] - out[0]
+    assert abs(np.arctan2(d[1], d[0])) < 1e-4
+    assert menger_curvature(out).max() <= 0.2
+
+
+def test_the_goal_stays_pinned():
+    o = _obstacle([20.0, -0.5])
+    xy = _detour(o)
+    out = fair_path(xy, np.zeros(len(xy)), 0.14, _values([o]), pin_end=True)
+    np.testing.assert_allclose(out[-1], xy[-1], atol=1e-4)
+
+
+def test_a_moving_obstacle_is_kept_clear_of_at_the_times_the_points_are_reached():
+    o = _obstacle([10.0, -0.5], velocity=(1.0, 0.0))   # at x = 20 when the path gets there (t = x / 2)
+    t = np.arange(0.0, 40.0, 0.1) / 2.0
+    xy = _detour(_obstacle([20.0, -0.5]))
+    out = fair_path(xy, t, 0.14, _values([o]))
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    s_out = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(out, axis=0), axis=1))])
+    t_out = np.interp(s_out / s_out[-1] * s[-1], s, t)
+    shifted = out - (t_out[:, None] - o.stamp) * o.velocity
+    assert np.all(o.value(shifted) > o.c)
+
+
+def test_the_convex_step_is_the_exact_minimiser():
+    """Against OSQP on the same QP: the half-planes enforced to 1e-5 m, the cost within 1e-6."""
+    osqp = pytest.importorskip("osqp")
+    import scipy.sparse as sp
+
+    o = _obstacle([5.0, -0.3])
+    r = np.column_stack([np.linspace(0, 10, 41), np.zeros(41)])
+    n, b = half_planes(r, np.zeros(41), _values([o]))
+    assert np.isfinite(b).sum() > 5
+    eps = (SPACING / 4.0) ** 4
+    x = _solve_convex(r, eps, n, b, r, pin_end=True)
+    K = len(r)
+    D = np.diff(np.eye(K), 2, axis=0)
+    H = np.kron(D.T @ D + eps * np.eye(K), np.eye(2))
+    rows, lo, hi = [], [], []
+    for k in range(K):
+        for j in range(2):
+            if k in (0, 1, K - 1):
+                e = np.zeros(2 * K)
+                e[2 * k + j] = 1.0
+                rows.append(e); lo.append(r[k, j]); hi.append(r[k, j])
+        if k not in (0, 1, K - 1) and np.isfinite(b[k]):
+            e = np.zeros(2 * K)
+            e[2 * k:2 * k + 2] = n[k]
+            rows.append(e); lo.append(b[k]); hi.append(np.inf)
+    m = osqp.OSQP()
+    m.setup(P=sp.csc_matrix(2 * H), q=-2 * eps * r.ravel(), A=sp.csc_matrix(np.array(rows)), l=np.array(lo),
+            u=np.array(hi), verbose=False, eps_abs=1e-9, eps_rel=1e-9, max_iter=100000, polishing=True,
+            raise_error=True)
+    ref = m.solve().x.reshape(K, 2)
+    J = lambda z: eps * np.sum((z - r) ** 2) + np.sum(np.diff(z, 2, axis=0) ** 2)
+    gap = np.where(np.isfinite(b), np.einsum("ij,ij->i", n, x) - b, 0.0)
+    assert gap[2:-1].min() > -1e-5
+    assert abs(J(x) - J(ref)) <= 1e-6 * max(J(ref), 1e-9) + 1e-9

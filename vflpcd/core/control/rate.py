@@ -1,0 +1,86 @@
+"""Rate-aware (increment) form of the horizon problem, for the unconstrained Eb-RHRL solver.
+
+The plant slews its inputs at a bounded rate (the car's steering at 0.6 rad/s, 0.03 rad per
+50 ms step), and a solver that does not know it asks for steps the actuator cannot make: the
+clip in front of the plant then delays the command and the loop oscillates (measured on
+``carsim_avoidance``: the lateral error grows past 5 m after the parked car). Eb-RHRL has no
+constraints, so the rate enters its model and cost instead. The state carries the previous
+control deviation and the decision is the increment:
+
+    z_tau = [x~_tau; u~_{tau-1}],   v_tau = u~_tau - u~_{tau-1},
+    z_{tau+1} = [[A_tau, B_tau], [0, I]] z_tau + [[B_tau], [I]] v_tau + [c_tau; 0],
+    stage cost z' blkdiag(Q, R) z + v' R_rate v,   terminal z' P_z z (DARE of the nominal pair),
+
+with u~_{-1} = u_prev - u_r,0. The control cost acts on u~_{tau-1} (one step late), and the
+half-planes and the barrier act on the x~ part unchanged. The applied deviation is
+u~_0 = u~_{-1} + v_0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sl
+
+from vflpcd.core.control.problem import HorizonProblem
+
+
+@dataclass(frozen=True)
+class RateForm:
+    """The nominal increment-form matrices of an error model with A (n, n), B (n, n_u), Q, R,
+    discount gamma and increment weight R_rate (n_u, n_u): A, B, Q, R (= R_rate), P (DARE) and the
+    terminal LQR gain K_terminal (n_u, n + n_u)."""
+
+    n: int
+    n_u: int
+    A: np.ndarray
+    B: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    P: np.ndarray
+    K_terminal: np.ndarray
+    gamma: float
+
+    @classmethod
+    def of(cls, A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, R_rate: np.ndarray,
+           gamma: float) -> "RateForm":
+        n, n_u = B.shape
+        R_rate = np.asarray(R_rate, float)
+        if R_rate.shape != (n_u, n_u) or np.any(np.linalg.eigvalsh(0.5 * (R_rate + R_rate.T)) <= 0):
+            raise ValueError(f"R_rate must be a positive definite {n_u}x{n_u} matrix, got {R_rate!r}")
+        Az, Bz = augment_pair(A, B)
+        Qz = sl.block_diag(Q, R)
+        g = np.sqrt(gamma)
+        P = sl.solve_discrete_are(g * Az, g * Bz, Qz, R_rate)
+        K = np.linalg.solve(R_rate + gamma * Bz.T @ P @ Bz, gamma * Bz.T @ P @ Az)
+        return cls(n, n_u, Az, Bz, Qz, R_rate, P, K, float(gamma))
+
+    def problem(self, p: HorizonProblem) -> HorizonProblem:
+        """The increment form of problem p (module docstring); its u_ref is the previous deviation
+        carried along (zeros: v has no reference) and its input bounds are open."""
+        N, n_u = p.N, self.n_u
+        A, B = augment_pair(p.A, p.B)
+        c = np.concatenate([p.c, np.zeros((N, n_u))], axis=1)
+        x0 = np.concatenate([p.x0, p.u_prev - p.u_ref[0]])
+        G = np.concatenate([p.G, np.zeros(p.G.shape[:2] + (n_u,))], axis=2)
+        open_ = np.full(n_u, np.inf)
+        return HorizonProblem(A=A, B=B, c=c, x0=x0, Q=self.Q, R=self.R, P=self.P, gamma=p.gamma,
+                              u_ref=np.zeros((N, n_u)), u_min=-open_, u_max=open_, du_max=open_,
+                              u_prev=np.zeros(n_u), G=G, g=p.g)
+
+    def deviation(self, z0: np.ndarray, v0: np.ndarray) -> np.ndarray:
+        """The first control deviation u~_0 = u~_{-1} + v_0 from the increment-form start z0."""
+        return z0[self.n:] + v0
+
+
+def augment_pair(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """[[A, B], [0, I]] and [[B], [I]] for one pair (n, n), (n, n_u) or stacked (N, n, n), (N, n, n_u)."""
+    n, n_u = B.shape[-2:]
+    lead = A.shape[:-2]
+    Az = np.zeros(lead + (n + n_u, n + n_u))
+    Az[..., :n, :n], Az[..., :n, n:] = A, B
+    Az[..., n:, n:] = np.eye(n_u)
+    Bz = np.zeros(lead + (n + n_u, n_u))
+    Bz[..., :n, :], Bz[..., n:, :] = B, np.eye(n_u)
+    return Az, Bz

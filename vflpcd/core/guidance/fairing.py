@@ -1,0 +1,162 @@
+"""Curvature bound for a planned path: fairing by bending energy around the repulsive regions.
+
+The integral of eq. (xi_r) turns as sharply as the reactive margin lets it (a car on
+``carsim_avoidance`` gets 0.5-0.8 1/m beside the parked car), and a car cannot follow a path
+whose curvature exceeds its geometric limit tan(delta_max) / L at any speed, so the speed plan of
+the centripetal limit alone cannot make such a path drivable. Where the peak curvature exceeds
+``kappa_max`` the path, resampled at spacing h, is replaced by the minimiser of
+
+    J(x) = (h / l)^4 sum_k |x_k - r_k|^2 + sum_k |x_{k-1} - 2 x_k + x_{k+1}|^2
+
+(r the planned points, l the fairing length: the longer, the stiffer the path) subject to every
+point staying outside every repulsive boundary Q_i, with the first two points kept (the start's
+position and the robot's heading; the end is free, as the next plan starts from the robot, unless
+it is the goal). A plan
+whose start direction is more than ``HEADING_TOLERANCE`` off the robot's heading is faired too:
+the field at a robot off the path points towards it, and a reference that starts at that angle
+asks the car for a step in heading. Q_i is convex, so it is convexified by a supporting
+half-plane per point: at the point where the gradient line through x_k meets the level
+varphi_i = CLEAR_LEVEL c_i just outside Q_i (a few outer rounds re-take them at the new points).
+Each convex problem is solved by an active set whose rounds are one banded Cholesky solve each. l is doubled
+from ``FAIR_MIN`` until the peak curvature is within kappa_max; if ``FAIR_MAX`` is reached the
+flattest clear path found is kept and the speed plan does what it can.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy.linalg import solveh_banded
+
+from vflpcd.core.guidance.speed import menger_curvature
+
+FAIR_MIN, FAIR_MAX = 2.0, 64.0  # fairing length l, m
+HEADING_TOLERANCE = np.radians(5.0)  # a planned start direction further off the robot's heading is faired
+SPACING = 0.25  # resampling step h, m
+CLEAR_LEVEL = 0.8  # half-planes touch varphi = CLEAR_LEVEL * c_i: just outside Q_i (c_i < 0)
+OUTER_ROUNDS = 3  # re-convexifications
+PENALTY = 1e7  # spring holding an active half-plane or a pinned point: it gives way by ~1e-7 m
+ACTIVE_ROUNDS = 200  # active-set rounds per convex problem (cap)
+VIOLATION = 1e-6  # m: an inactive half-plane violated by more is added
+RELEASE = 1e-13  # m: an active point held this far outside (multiplier -PENALTY gap < -1e-6) is released
+
+# obstacles(points (K, d), times (K,)) -> one (varphi (K,), grad (K, d), c) per obstacle
+ObstacleValues = Callable[[np.ndarray, np.ndarray], Sequence[tuple[np.ndarray, np.ndarray, float]]]
+
+
+def resample(xy: np.ndarray, times: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points (K, d) and their times (K,) resampled at arc-length spacing h (both ends kept)."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    n = max(int(np.ceil(s[-1] / h)), 6)
+    si = np.linspace(0.0, s[-1], n + 1)
+    pts = np.column_stack([np.interp(si, s, xy[:, j]) for j in range(xy.shape[1])])
+    return pts, np.interp(si, s, times)
+
+
+def half_planes(x: np.ndarray, t: np.ndarray, obstacles: ObstacleValues) -> tuple[np.ndarray, np.ndarray]:
+    """Per point the supporting half-plane n_k' x >= b_k of the nearest-reaching repulsive region
+    among those whose reactive region holds the point (n_k = 0, b_k = -inf: free)."""
+    n = np.zeros_like(x)
+    b = np.full(len(x), -np.inf)
+    worst = np.full(len(x), np.inf)
+    for i, (v, _, c) in enumerate(obstacles(x, t)):
+        near = np.nonzero((v < 0.0) & (v / c < worst))[0]  # v / c: 1 on Q_i, 0 on R_i
+        if near.size == 0:
+            continue
+        q = x[near]
+        for _ in range(6):  # Newton along the gradient to varphi_i = CLEAR_LEVEL c_i
+            vq, gq, _ = obstacles(q, t[near])[i]
+            q = q + ((CLEAR_LEVEL * c - vq) / np.maximum(np.einsum("ij,ij->i", gq, gq), 1e-12))[:, None] * gq
+        _, gq, _ = obstacles(q, t[near])[i]
+        nq = gq / np.maximum(np.linalg.norm(gq, axis=1, keepdims=True), 1e-12)
+        n[near], b[near] = nq, np.einsum("ij,ij->i", nq, q)
+        worst[near] = v[near] / c
+    return n, b
+
+
+def _hessian_bands(K: int, d: int, eps: float) -> np.ndarray:
+    """kron(D2'D2 + eps I, I_d) over the interleaved coordinates x[k d + j], in solveh_banded's
+    upper layout with 2 d + 1 super-diagonals: ab[u + i - j, j] = M[i, j]."""
+    D2 = np.zeros((K - 2, K))
+    rows = np.arange(K - 2)
+    D2[rows, rows], D2[rows, rows + 1], D2[rows, rows + 2] = 1.0, -2.0, 1.0
+    M = np.kron(D2.T @ D2 + eps * np.eye(K), np.eye(d))
+    u = 2 * d + 1
+    ab = np.zeros((u + 1, K * d))
+    for off in range(u + 1):
+        ab[u - off, off:] = np.diagonal(M, off)
+    return ab
+
+
+def _solve_convex(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, x0: np.ndarray,
+                  pin_end: bool) -> np.ndarray:
+    """min eps |x - r|^2 + |D2 x|^2 subject to n_k' x_k >= b_k, with the first two points (and with
+    pin_end the last) pinned, by an active set: each round solves the banded normal equations with
+    the active half-planes (and the pins) held by a stiff spring (PENALTY), then adds every violated
+    half-plane, or else releases the one that the spring holds from outside the most (a negative
+    multiplier); it ends when neither exists (x is then the minimiser to ~1e-7 m)."""
+    K, d = r.shape
+    u = 2 * d + 1
+    base = _hessian_bands(K, d, eps)
+    f0 = eps * r.ravel()
+    pinned = [0, 1, K - 1] if pin_end else [0, 1]
+    cols = (np.array(pinned)[:, None] * d + np.arange(d)).ravel()
+    base[u, cols] += PENALTY
+    f0[cols] += PENALTY * r[pinned].ravel()
+    constrained = np.isfinite(b)
+    constrained[pinned] = False
+    active = constrained & (np.einsum("ij,ij->i", n, x0) < b)
+    pairs = [(j1, j2) for j1 in range(d) for j2 in range(j1, d)]
+    x = x0
+    for _ in range(ACTIVE_ROUNDS):
+        ab, f = base.copy(), f0.copy()
+        k = np.nonzero(active)[0]
+        for j1, j2 in pairs:
+            np.add.at(ab[u - (j2 - j1)], k * d + j2, PENALTY * n[k, j1] * n[k, j2])
+        f.reshape(K, d)[k] += PENALTY * b[k, None] * n[k]
+        x = solveh_banded(ab, f).reshape(K, d)
+        gap = np.where(constrained, np.einsum("ij,ij->i", n, x) - b, 0.0)
+        violated = ~active & (gap < -VIOLATION)
+        if np.any(violated):
+            active |= violated
+            continue
+        held = np.where(active & (gap > RELEASE), gap, 0.0)
+        if not np.any(held):
+            break
+        active[np.argmax(held)] = False
+    return x
+
+
+def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, obstacles: ObstacleValues,
+              heading: np.ndarray | None = None, pin_end: bool = False) -> np.ndarray:
+    """The path xy (K, d) (reached at times (K,)) with its peak curvature brought within kappa_max
+    and, with ``heading`` (d,), leaving the start in the robot's heading (module docstring); with
+    ``pin_end`` the last point stays where it is (the goal);
+    returned unchanged (not resampled) if it already does both.
+    ``obstacles(points, times)`` gives every obstacle's (varphi, grad, c) at the points."""
+    if not np.isfinite(kappa_max) or len(xy) < 7:
+        return xy
+    first = xy[min(int(np.ceil(SPACING / max(np.linalg.norm(xy[1] - xy[0]), 1e-9))), len(xy) - 1)] - xy[0]
+    aligned = heading is None or first @ heading >= np.cos(HEADING_TOLERANCE) * np.linalg.norm(first)
+    if aligned and np.max(menger_curvature(xy)) <= kappa_max:
+        return xy
+    r, t = resample(xy, times, SPACING)
+    if heading is not None:  # the second point pins the start heading to the robot's
+        r[1] = r[0] + SPACING * np.asarray(heading, float) / np.linalg.norm(heading)
+    best, best_kappa = r, np.max(menger_curvature(r))
+    fair = FAIR_MIN
+    while fair <= FAIR_MAX * (1 + 1e-9):
+        eps = (SPACING / fair) ** 4
+        x = r
+        for _ in range(OUTER_ROUNDS):
+            n, b = half_planes(x, t, obstacles)
+            x = _solve_convex(r, eps, n, b, x, pin_end)
+        clear = all(np.all(v[2:-2] > c) for v, _, c in obstacles(x, t))
+        kappa = np.max(menger_curvature(x))
+        if clear and kappa < best_kappa:
+            best, best_kappa = x, kappa
+        if clear and kappa <= kappa_max:
+            return x
+        fair *= 2.0
+    return best
