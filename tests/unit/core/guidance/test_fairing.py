@@ -111,9 +111,10 @@ def test_the_convex_step_is_the_exact_minimiser():
             rows.append(e); lo.append(b[k]); hi.append(np.inf)
     m = osqp.OSQP()
     m.setup(P=sp.csc_matrix(2 * H), q=-2 * eps * r.ravel(), A=sp.csc_matrix(np.array(rows)), l=np.array(lo),
-            u=np.array(hi), verbose=False, eps_abs=1e-9, eps_rel=1e-9, max_iter=100000, polishing=True,
-            raise_error=True)
-    ref = m.solve().x.reshape(K, 2)
+            u=np.array(hi), verbose=False, eps_abs=1e-9, eps_rel=1e-9, max_iter=100000, polishing=True)
+    res = m.solve(raise_error=True)
+    assert res.info.status == "solved"
+    ref = res.x.reshape(K, 2)
     J = lambda z: eps * np.sum((z - r) ** 2) + np.sum(np.diff(z, 2, axis=0) ** 2)
     gap = np.where(np.isfinite(b), np.einsum("ij,ij->i", n, x) - b, 0.0)
     assert gap[2:-1].min() > -1e-5
