@@ -14,7 +14,7 @@ $(BIN)/.installed: pyproject.toml
 setup: $(BIN)/.installed
 
 demo: $(BIN)/.installed
-	$(BIN)/vflpcd sim carsim_avoidance --controller pure_pursuit --out results/demo
+	$(BIN)/vflpcd sim carsim_avoidance --controller vflpc --out results/demo
 
 test: $(BIN)/.installed
 	$(BIN)/pytest -q

@@ -56,6 +56,19 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
     b.set_defaults(func=cmd_bench_dynamics)
 
+    b = bench.add_parser("impc", help="VF-LPC against NMPC (MPC-CBF), Koopman-MPC and pure pursuit "
+                                      "(the paper's IMPC table), w/ and w/o ML, and on uav_3d")
+    b.add_argument("--scenario", default="carsim_avoidance", help="ground scenario (default carsim_avoidance)")
+    b.add_argument("--aerial", default="uav_3d", help="aerial scenario of table 3 (default uav_3d)")
+    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    b.set_defaults(func=cmd_bench_impc)
+
+    b = bench.add_parser("variants", help="VF-LPC on seeded road variants with moving obstacles (collisions)")
+    b.add_argument("--n", type=int, default=50, help="number of variants (default 50)")
+    b.add_argument("--first-seed", type=int, default=0, help="seed of the first variant (default 0)")
+    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    b.set_defaults(func=cmd_bench_variants)
+
     p = sub.add_parser("scenarios", help="list the scenarios in config/scenarios")
     p.set_defaults(func=cmd_scenarios)
 
@@ -126,6 +139,35 @@ def cmd_bench_guidance(args) -> int:
     if args.repeat < 1 or args.astar_repeat < 1:
         raise ConfigError("command line", "--repeat", "expected at least one run")
     bench_guidance(scenario, args.out, args.repeat, args.astar_repeat, args.safe_distance)
+    return 0
+
+
+def cmd_bench_impc(args) -> int:
+    from sim.scenarios import load_scenario
+
+    for option, name, platform in (("--scenario", args.scenario, "ground"), ("--aerial", args.aerial, "aerial")):
+        found = load_scenario(name).platform
+        if found != platform:
+            raise ConfigError("command line", option, f"expected a {platform} scenario, {name!r} is {found}")
+    import importlib.util
+
+    missing = [m for m in ("casadi", "osqp") if importlib.util.find_spec(m) is None]
+    if missing:
+        print(f"vflpcd: error: the IMPC benchmark needs {' and '.join(missing)}: pip install -e '.[bench]'",
+              file=sys.stderr)
+        return 2
+    from sim.bench.impc import bench_impc
+
+    bench_impc(args.out, args.scenario, args.aerial)
+    return 0
+
+
+def cmd_bench_variants(args) -> int:
+    if args.n < 1 or args.first_seed < 0:
+        raise ConfigError("command line", "--n", "expected at least one variant and a seed >= 0")
+    from sim.bench.variants import bench_variants
+
+    bench_variants(args.out, args.n, args.first_seed)
     return 0
 
 

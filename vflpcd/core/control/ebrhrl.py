@@ -142,37 +142,43 @@ class EbRHRL:
         self.W_a[:-1] = self.W_a[1:].copy()
         self.W_c[:-1] = self.W_c[1:].copy()
 
-    def rollout(self, problem: HorizonProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Apply the actor to the error model: x~ (N + 1, n), u~ (N, n_u), Phi (N + 1, n_Phi)."""
+    def rollout(self, problem: HorizonProblem, closed: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Apply the actor to the error model: x~ (N + 1, n), u~ (N, n_u), Phi (N + 1, n_Phi).
+        ``closed``: A_tau - B_tau K_tau (N, n, n) if already at hand."""
         N, f = self.N, self.features
+        A_cl = self.closed_loop(problem) if closed is None else closed
+        BW = np.einsum("tiu,tmu->tim", problem.B, self.W_a)        # B_tau W_a,tau' (N, n, n_Phi)
         x = np.empty((N + 1, self.n))
-        u = np.empty((N, self.n_u))
         phi = np.empty((N + 1, f.size))
         x[0] = problem.x0
-        A, B, c, K, W = problem.A, problem.B, problem.c, self.K, self.W_a
+        c = problem.c
         a, b, h = f._a, f._b, f._h
-        for k in range(N):
+        for k in range(N):  # the only sequential part: x~_{tau+1} = (A - B K) x~ + B W_a' Phi(x~) + c
             xk = x[k]
-            phi[k] = np.exp(a + b @ xk - h @ (xk * xk))
-            u[k] = phi[k] @ W[k] - K[k] @ xk
-            x[k + 1] = A[k] @ xk + B[k] @ u[k] + c[k]
+            pk = np.exp(a + b @ xk - h @ (xk * xk))
+            phi[k] = pk
+            x[k + 1] = A_cl[k] @ xk + BW[k] @ pk + c[k]
         phi[N] = f(x[N])
+        u = np.einsum("tm,tmu->tu", phi[:-1], self.W_a) - np.einsum("tun,tn->tu", self.K, x[:-1])
         return x, u, phi
 
+    def closed_loop(self, problem: HorizonProblem) -> np.ndarray:
+        """A_tau - B_tau K_tau (N, n, n): the error model under the prior."""
+        return problem.A - np.einsum("tiu,tun->tin", problem.B, self.K)
+
     def costates(self, problem: HorizonProblem, x: np.ndarray, u: np.ndarray,
-                 barrier: HorizonBarrier | None) -> np.ndarray:
-        """Target costates lambda_tau (N + 1, n) of step 2 along the rollout x~ (N + 1, n), u~ (N, n_u)."""
+                 barrier: HorizonBarrier | None, closed: np.ndarray | None = None) -> np.ndarray:
+        """Target costates lambda_tau (N + 1, n) of step 2 along the rollout x~ (N + 1, n), u~ (N, n_u):
+        lambda_tau = 2 Q x~ + dh/dx~ - 2 K' R u~ + gamma (A - B K)' lambda_{tau+1}."""
         grad_h = barrier.gradient(x) if barrier is not None else np.zeros_like(x)
+        A_cl = self.closed_loop(problem) if closed is None else closed
         lam = np.empty_like(x)
         lam[-1] = 2.0 * self.P @ x[-1] + grad_h[-1]
-        stage = 2.0 * x @ self.Q.T + grad_h
-        Ru2 = 2.0 * u @ self.R.T
-        gA = self.gamma * problem.A
-        gB = self.gamma * problem.B
-        KT = self.K.transpose(0, 2, 1)
+        stage = 2.0 * x[:-1] @ self.Q.T + grad_h[:-1] - np.einsum("tun,tu->tn", self.K, 2.0 * u @ self.R.T)
+        gA_cl = self.gamma * A_cl
         for k in range(self.N - 1, -1, -1):
-            nxt = lam[k + 1]
-            lam[k] = stage[k] + nxt @ gA[k] - KT[k] @ (Ru2[k] + nxt @ gB[k])
+            lam[k] = stage[k] + lam[k + 1] @ gA_cl[k]
         return lam
 
     def solve(self, problem: HorizonProblem, barrier: HorizonBarrier | None = None) -> tuple[np.ndarray, SolveInfo]:
@@ -184,9 +190,10 @@ class EbRHRL:
         BT = problem.B.transpose(0, 2, 1)                                # (N, n_u, n)
         info = SolveInfo(0, False, np.inf, np.inf)
         eta = self.eta_a
+        closed = self.closed_loop(problem)
         for i in range(1, self.i_max + 1):
-            x, u, phi = self.rollout(problem)
-            lam = self.costates(problem, x, u, barrier)
+            x, u, phi = self.rollout(problem, closed)
+            lam = self.costates(problem, x, u, barrier, closed)
             lam_hat = np.einsum("tm,tmn->tn", phi, self.W_c)
             inv_norm = 1.0 / np.maximum(np.einsum("tm,tm->t", phi, phi), PHI_FLOOR)
             self.W_c += np.einsum("tm,tn->tmn", phi * inv_norm[:, None], lam - lam_hat)       # eta_c = 1/||Phi||^2

@@ -33,7 +33,7 @@ from vflpcd.core.guidance.field import ActualTerm, GuidanceField, VirtualTerm
 from vflpcd.core.guidance.grid import FieldGrid, Integration, integrate
 from vflpcd.core.guidance.implicit import E, GraphPath, GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.params import GuidanceParams
-from vflpcd.core.guidance.speed import arrival_times, plan_speed, smooth_path
+from vflpcd.core.guidance.speed import plan_speed, smooth_path, step_times
 from vflpcd.core.guidance.trajectory import Trajectory, timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
@@ -257,14 +257,14 @@ class GuidancePlanner(PlannerBase):
         x_end = float(graph.progress(self.path.point_at(s_end)[None, :])[0]) - (p.beta if ends_path else 0.0)
         return Prepared(field=field, grid=grid, s0=s0, s_end=s_end, x_end=x_end, ends_path=ends_path)
 
-    def _integrate_and_time(self, field, prepared: Prepared, start, t0, v0, heading, step_times):
+    def _integrate_and_time(self, field, prepared: Prepared, start, t0, v0, heading, steps):
         """Eq. (xi_r), smoothing and speed planning: (integration, xy, s, kappa, v)."""
         p = self.params
         length = prepared.s_end - prepared.s0
         res: Integration = integrate(field, prepared.grid, start, prepared.x_end, p.beta, p.epsilon,
                                      max_steps=int(4 * (length + 20.0) / p.beta), t0=t0,
-                                     speed=max(v0, 0.5 * self.v_desired), heading=heading, step_times=step_times)
-        times = step_times if step_times is not None and len(step_times) else None
+                                     speed=max(v0, 0.5 * self.v_desired), heading=heading, step_times=steps)
+        times = steps if steps is not None and len(steps) else None
         xy = self.safe_smooth(res.xy, field.statics + field.movers, t0, times)
         goal = prepared.ends_path and res.reached
         xy = self.faired(xy, field.statics + field.movers, t0, times, heading, pin_end=goal)
@@ -283,9 +283,8 @@ class GuidancePlanner(PlannerBase):
         h = None if heading is None else np.array([np.cos(heading), np.sin(heading)])
         res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h, None)
         for _ in range(MOVER_PASSES if movers else 0):  # place moving obstacles at the last pass's times
-            times = t0 + arrival_times(s, v)
             res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h,
-                                                            times[np.isfinite(times)])
+                                                            step_times(s, v, t0, self.params.beta))
         trajectory = timed_trajectory(xy, s, v, t0, self.dt)
         return GuidancePlan(trajectory=trajectory, xy=xy, s=s, kappa=kappa, v=v, raw=res.xy,
                             reached=res.reached, inherited=res.inherited, field=field, gammas=res.gammas,

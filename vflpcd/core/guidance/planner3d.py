@@ -20,7 +20,7 @@ from vflpcd.core.guidance.grid import BACKWARDS, step_time
 from vflpcd.core.guidance.implicit import GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.planner import MOVER_PASSES, GuidancePlan, PlannerBase
 from vflpcd.core.guidance.primitives import bump
-from vflpcd.core.guidance.speed import arrival_times, plan_speed
+from vflpcd.core.guidance.speed import plan_speed, step_times
 from vflpcd.core.guidance.trajectory import timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
 
@@ -92,16 +92,15 @@ class GuidancePlanner3D(PlannerBase):
         if movers:
             field = replace(field, movers=[self.obstacle(self.implicit(o), t0) for o in movers])
         start = self.check_clear(start, field.statics + field.movers, t0, "start")
-        step_times = None
+        steps = None
         for _ in range(1 + (MOVER_PASSES if movers else 0)):  # moving obstacles at the last pass's times
             raw, reached, inherited, gammas = self._integrate(
                 field, start, prepared.x_end, t0, max(v0, 0.5 * self.v_desired),
-                int(4 * (prepared.s_end - prepared.s0 + 20.0) / p.beta), step_times)
-            xyz = self.safe_smooth(raw, field.statics + field.movers, t0, step_times)
+                int(4 * (prepared.s_end - prepared.s0 + 20.0) / p.beta), steps)
+            xyz = self.safe_smooth(raw, field.statics + field.movers, t0, steps)
             s, kappa, v = plan_speed(xyz, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
                                      v_end=0.0 if (prepared.ends_path and reached) else None)
-            times = t0 + arrival_times(s, v)
-            step_times = times[np.isfinite(times)]
+            steps = step_times(s, v, t0, p.beta)
         return GuidancePlan(trajectory=timed_trajectory(xyz, s, v, t0, self.dt), xy=xyz, s=s, kappa=kappa, v=v,
                             raw=raw, reached=reached, inherited=inherited, field=field, gammas=gammas)
 

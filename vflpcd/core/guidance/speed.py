@@ -70,6 +70,18 @@ def arrival_times(s: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(dt)])
 
 
+def step_times(s: np.ndarray, v: np.ndarray, t0: float, beta: float) -> np.ndarray:
+    """When the speed-planned path (arc lengths s (K,), speeds v (K,)) reaches arc length k beta,
+    k = 0, 1, ..: the step times of the next integration of eq. (xi_r) (the path's own sampling
+    may differ from the integration's, e.g. after fairing). Only reached points count."""
+    t = arrival_times(s, v)
+    ok = np.isfinite(t)
+    if not np.any(ok):
+        return np.array([t0])
+    s_ok = s[ok]
+    return t0 + np.interp(np.arange(0.0, s_ok[-1] + 1e-9, beta), s_ok, t[ok])
+
+
 def smooth_path(raw: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian smoothing of a polyline (K, d) with std sigma (samples) that keeps its first point:
     the offset smoothing makes there fades out linearly over 3 sigma samples."""

@@ -59,3 +59,29 @@ def test_diverging_solver_falls_back_to_the_terminal_lqr(straight):
     u = ctrl.step(plant.state, 0.0)
     assert np.all(np.isfinite(u)) and ctrl.fallbacks == 1 and Broken.resets == 1
     assert np.all(u >= ctrl.limits.u_min) and np.all(u <= ctrl.limits.u_max)
+
+
+def test_a_due_replan_waits_for_the_background_and_the_next_step_uses_it(straight):
+    ctrl = make_vflpc(straight)
+    plant = make_plant(straight, 0)
+    ctrl.step(plant.state, 0.0)
+    assert ctrl.replans == 1                       # the first reference is planned at once
+    walker = ObstacleState("walker", Circle(0.4), np.array([30.0, 4.0]), 0.0, np.array([0.0, -1.0]), 0.05)
+    first = ctrl._plan
+    ctrl.step(plant.state, 0.05, [walker])        # the obstacle picture changed: a replan is due ...
+    assert ctrl.replans == 1 and ctrl._plan is first
+    ctrl.background()                             # ... and runs as worker work
+    assert ctrl.replans == 2 and ctrl._plan is not first
+    ctrl.background()                             # nothing more is due
+    assert ctrl.replans == 2
+
+
+def test_the_quadrotor_state_is_picked_by_name():
+    sc = load_scenario("uav_3d")
+    ctrl = make_vflpc(sc)
+    plant = make_plant(sc, 0)
+    assert len(plant.state) == 13 and ctrl.model.n_x == 6
+    u = ctrl.step(plant.state, 0.0)
+    assert u.shape == (3,) and np.all(np.isfinite(u))
+    with pytest.raises(ValueError, match="13 finite numbers"):
+        ctrl.step(plant.state[:6], 0.05)

@@ -185,16 +185,18 @@ def test_dense_static_plan_is_safe_and_timed(params):
     assert ref.shape == (len(traj.t), 6) and np.all(np.isfinite(ref))
 
 
-def test_replanning_from_mid_path_around_a_crossing_obstacle(params):
-    """Moving obstacles: the plan starts where the robot is and avoids where the obstacle will be."""
+@pytest.mark.parametrize("kappa_limit, heading", [(np.inf, None), (0.17, 0.4)])
+def test_replanning_from_mid_path_around_a_crossing_obstacle(params, kappa_limit, heading):
+    """Moving obstacles: the plan starts where the robot is and avoids where the obstacle will be,
+    also when fairing resamples the path (a car's curvature limit and a start heading off the field)."""
     path = ReferencePath.line([0.0, 0.0], [80.0, 0.0])
-    planner = GuidancePlanner(path, replace(params, horizon=40.0), 4.0, 3.0, 1.0, 0.05)
+    planner = GuidancePlanner(path, replace(params, horizon=40.0), 4.0, 3.0, 1.0, 0.05, kappa_limit=kappa_limit)
     prepared = planner.prepare(20.0, [])
     assert prepared.s_end == pytest.approx(60.0)
     crossing = ObstacleState(id="walker", shape=Circle(0.5), center=np.array([35.0, -6.0]), yaw=0.0,
                              velocity=np.array([0.0, 1.5]), stamp=10.0)
     start = np.array([20.0, 1.5])
-    plan = planner.plan(prepared, start, 10.0, 4.0, movers=[crossing])
+    plan = planner.plan(prepared, start, 10.0, 4.0, movers=[crossing], heading=heading)
     assert plan.reached and plan.xy[0] == pytest.approx(start, abs=0.05)
     traj = plan.trajectory
     o = plan.field.movers[0].implicit
