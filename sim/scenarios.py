@@ -242,3 +242,37 @@ def _check_start_is_free(s: Scenario) -> None:
         if gap < 0.0:
             raise ConfigError(s.file, f"obstacles[{i}]",
                               f"obstacle {o.id!r} covers the start position (clearance {gap:.2f} m)")
+
+
+LINE_TOML = """name = "{name}"
+platform = "ground"
+control_period = 0.05
+t_max = {t_max}
+[vehicle]
+plant = "dynamic_bicycle"
+[path]
+kind = "line"
+start = [0.0, 0.0]
+end = [{length}, 0.0]
+[start]
+position = [0.0, {y0}]
+speed = {speed}
+[speed]
+desired = {speed}
+a_lat_max = {a_lat_max}
+[goal]
+tolerance = 1.0
+[metrics]
+q1 = 1.0
+q2 = 1.0
+R = [[0.1, 0.0], [0.0, 1.0]]
+{obstacles}
+"""
+
+
+def line_scenario_toml(name: str, *, length: float = 60.0, y0: float = 0.0, speed: float = 5.0,
+                       a_lat_max: float = 3.0, t_max: float = 20.0, obstacles: str = "") -> str:
+    """TOML of a ground scenario on the straight road (0, 0) -> (length, 0) with the car starting
+    y0 beside it; ``obstacles`` is TOML text of [[obstacles]] tables (tests and `bench variants`)."""
+    return LINE_TOML.format(name=name, length=length, y0=y0, speed=speed, a_lat_max=a_lat_max, t_max=t_max,
+                            obstacles=obstacles)

@@ -1,7 +1,7 @@
 """`vflpcd bench variants`: VF-LPC on seeded road variants with moving obstacles.
 
-Each variant is a 160 m straight road at 25 km/h (``sim.scenarios.line_scenario``-style TOML,
-written to the output folder) with a pedestrian who starts crossing when the car is 20-35 m away
+Each variant is a 160 m straight road at 25 km/h (``sim.scenarios.line_scenario_toml``, written
+to the output folder) with a pedestrian who starts crossing when the car is 20-35 m away
 (0.8-1.8 m/s, from either side, at 35-55 m), a slow car that drives off ahead (1-3 m/s, at
 75-90 m) and, in half of them, a static barrel between the two. Per seed it prints the outcome,
 collisions, the minimum clearance and which obstacle came closest; then the totals. A run counts
@@ -18,32 +18,7 @@ import numpy as np
 
 from sim.lpc import make_vflpc
 from sim.runner import run_closed_loop
-from sim.scenarios import load_scenario
-
-ROAD = """name = "{name}"
-platform = "ground"
-control_period = 0.05
-t_max = 60.0
-[vehicle]
-plant = "dynamic_bicycle"
-[path]
-kind = "line"
-start = [0.0, 0.0]
-end = [160.0, 0.0]
-[start]
-position = [0.0, 0.0]
-speed = 6.944
-[speed]
-desired = 6.944
-a_lat_max = 3.0
-[goal]
-tolerance = 1.0
-[metrics]
-q1 = 1.0
-q2 = 1.0
-R = [[0.1, 0.0], [0.0, 1.0]]
-"""
-
+from sim.scenarios import line_scenario_toml, load_scenario
 
 def variant_toml(seed: int) -> str:
     """The scenario TOML of variant ``seed``."""
@@ -51,7 +26,7 @@ def variant_toml(seed: int) -> str:
     side = rng.choice([-1.0, 1.0])
     speed = rng.uniform(0.8, 1.8)
     heading = -side * np.pi / 2 + rng.uniform(-0.3, 0.3)
-    text = ROAD.format(name=f"variant{seed}") + f"""
+    text = f"""
 [[obstacles]]
 id = "pedestrian"
 shape = "circle"
@@ -79,7 +54,7 @@ shape = "circle"
 radius = 0.6
 center = [{rng.uniform(60.0, 68.0):.3f}, {rng.uniform(-1.0, 1.0):.3f}]
 """
-    return text
+    return line_scenario_toml(f"variant{seed}", length=160.0, speed=6.944, t_max=60.0, obstacles=text)
 
 
 def run_variant(seed: int, folder: Path) -> dict:
