@@ -2,23 +2,24 @@
 
 Every ``step(state, t, obstacles)``:
 1. checks the input (finite state; obstacles with finite centres and velocities);
-2. guidance (``Main``, lines "reaching the end of the guiding trajectory"): replans the GVF
-   reference when none exists, when fewer than N dt + end_margin seconds of it are left, or when
-   the obstacle picture changed (an obstacle appeared, went or changed velocity); a failed replan
-   keeps the previous reference and is counted;
+2. guidance (``Main``, lines "reaching the end of the guiding trajectory"): plans the GVF
+   reference at once when none exists; a replan that is due (fewer than N dt + end_margin seconds
+   of reference left, or the obstacle picture changed: an obstacle appeared, went or changed
+   velocity) is left to ``background()``, and the next step uses it; a failed replan keeps the
+   previous reference and is counted;
 3. builds the horizon problem in the lifted error space (``error_model``), with the GP
    correction when an online compensator has a model;
 4. switches the barrier on for every moving obstacle in the pursuer-evader region E_p (``game_region``;
    mu_o = 0 in E_c), at most ``max_threats`` of them, nearest first (``barrier``);
 5. solves with the horizon solver (Eb-RHRL by default, warm-started from the previous tick's
-   shifted weights) and applies the first control u = u_r,0 + u~_0, clipped into the actuator
-   magnitude and rate limits;
+   shifted weights; in the increment form of ``rate.py`` when ``r_rate`` is configured) and
+   applies the first control u = u_r,0 + u~_0, clipped into the actuator magnitude and rate limits;
 6. a solve that returns a non-finite command, or one beyond ``divergence`` times the actuator
    range, is replaced by the terminal LQR law u~ = -K_P x~ (K_P from the DARE that gives P),
    counted in ``fallbacks``, and the solver's weights are reset.
 
 GP samples are offered to the compensator every step (``OnlineCompensator.observe``, cheap);
-the refit is worker work: ``background()`` runs it when due (the offline runner calls it after
+the refit is worker work too: ``background()`` runs it when due (the offline runner calls it after
 each timed step, the daemon on its model worker).
 """
 

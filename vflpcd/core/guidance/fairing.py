@@ -24,6 +24,7 @@ flattest clear path found is kept and the speed plan does what it can.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
@@ -41,8 +42,15 @@ ACTIVE_ROUNDS = 200  # active-set rounds per convex problem (cap)
 VIOLATION = 1e-6  # m: an inactive half-plane violated by more is added
 RELEASE = 1e-13  # m: an active point held this far outside (multiplier -PENALTY gap < -1e-6) is released
 
-# obstacles(points (K, d), times (K,)) -> one (varphi (K,), grad (K, d), c) per obstacle
-ObstacleValues = Callable[[np.ndarray, np.ndarray], Sequence[tuple[np.ndarray, np.ndarray, float]]]
+
+
+@dataclass(frozen=True)
+class Region:
+    """One repulsive region: value_grad(points (K, d), times (K,)) -> (varphi (K,), grad (K, d))
+    at the times the points are reached, and its repulsive level c < 0 (Q: varphi <= c)."""
+
+    value_grad: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+    c: float
 
 
 def resample(xy: np.ndarray, times: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -54,21 +62,23 @@ def resample(xy: np.ndarray, times: np.ndarray, h: float) -> tuple[np.ndarray, n
     return pts, np.interp(si, s, times)
 
 
-def half_planes(x: np.ndarray, t: np.ndarray, obstacles: ObstacleValues) -> tuple[np.ndarray, np.ndarray]:
+def half_planes(x: np.ndarray, t: np.ndarray, regions: Sequence[Region]) -> tuple[np.ndarray, np.ndarray]:
     """Per point the supporting half-plane n_k' x >= b_k of the nearest-reaching repulsive region
     among those whose reactive region holds the point (n_k = 0, b_k = -inf: free)."""
     n = np.zeros_like(x)
     b = np.full(len(x), -np.inf)
     worst = np.full(len(x), np.inf)
-    for i, (v, _, c) in enumerate(obstacles(x, t)):
+    for region in regions:
+        c = region.c
+        v, _ = region.value_grad(x, t)
         near = np.nonzero((v < 0.0) & (v / c < worst))[0]  # v / c: 1 on Q_i, 0 on R_i
         if near.size == 0:
             continue
         q = x[near]
         for _ in range(6):  # Newton along the gradient to varphi_i = CLEAR_LEVEL c_i
-            vq, gq, _ = obstacles(q, t[near])[i]
+            vq, gq = region.value_grad(q, t[near])
             q = q + ((CLEAR_LEVEL * c - vq) / np.maximum(np.einsum("ij,ij->i", gq, gq), 1e-12))[:, None] * gq
-        _, gq, _ = obstacles(q, t[near])[i]
+        _, gq = region.value_grad(q, t[near])
         nq = gq / np.maximum(np.linalg.norm(gq, axis=1, keepdims=True), 1e-12)
         n[near], b[near] = nq, np.einsum("ij,ij->i", nq, q)
         worst[near] = v[near] / c
@@ -128,13 +138,13 @@ def _solve_convex(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, x0: n
     return x
 
 
-def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, obstacles: ObstacleValues,
+def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequence[Region],
               heading: np.ndarray | None = None, pin_end: bool = False) -> np.ndarray:
     """The path xy (K, d) (reached at times (K,)) with its peak curvature brought within kappa_max
     and, with ``heading`` (d,), leaving the start in the robot's heading (module docstring); with
     ``pin_end`` the last point stays where it is (the goal);
     returned unchanged (not resampled) if it already does both.
-    ``obstacles(points, times)`` gives every obstacle's (varphi, grad, c) at the points."""
+    ``regions``: the repulsive regions to stay out of."""
     if not np.isfinite(kappa_max) or len(xy) < 7:
         return xy
     first = xy[min(int(np.ceil(SPACING / max(np.linalg.norm(xy[1] - xy[0]), 1e-9))), len(xy) - 1)] - xy[0]
@@ -150,9 +160,9 @@ def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, obstacles: Ob
         eps = (SPACING / fair) ** 4
         x = r
         for _ in range(OUTER_ROUNDS):
-            n, b = half_planes(x, t, obstacles)
+            n, b = half_planes(x, t, regions)
             x = _solve_convex(r, eps, n, b, x, pin_end)
-        clear = all(np.all(v[2:-2] > c) for v, _, c in obstacles(x, t))
+        clear = all(np.all(r.value_grad(x, t)[0][2:-2] > r.c) for r in regions)
         kappa = np.max(menger_curvature(x))
         if clear and kappa < best_kappa:
             best, best_kappa = x, kappa

@@ -24,11 +24,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Sequence
 
 import numpy as np
 
-from vflpcd.core.guidance.fairing import fair_path
+from vflpcd.core.guidance.fairing import Region, fair_path
 from vflpcd.core.guidance.field import ActualTerm, GuidanceField, VirtualTerm
 from vflpcd.core.guidance.grid import FieldGrid, Integration, integrate
 from vflpcd.core.guidance.implicit import E, GraphPath, GuidanceError, ObstacleImplicit, graph_horizon
@@ -133,15 +134,8 @@ class PlannerBase:
                heading: np.ndarray | None = None, pin_end: bool = False) -> np.ndarray:
         """xy (K, d) with its curvature brought within kappa_max around the terms' repulsive regions,
         leaving the start along ``heading`` (d,) when given, ending where it ends with ``pin_end``."""
-        def obstacles(pts: np.ndarray, t: np.ndarray):
-            out = []
-            for term in terms:  # a moving centre c(t): varphi(p, t) = varphi(p - v (t - stamp), stamp)
-                o = term.implicit
-                v, g = o.value_grad(pts - (t[:, None] - o.stamp) * o.velocity, o.stamp)
-                out.append((v, g, o.c))
-            return out
-
-        return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, obstacles, heading, pin_end)
+        regions = [Region(partial(_value_grad_at_times, term.implicit), term.implicit.c) for term in terms]
+        return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, regions, heading, pin_end)
 
     @staticmethod
     def _values(o: ObstacleImplicit, xy: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -149,6 +143,12 @@ class PlannerBase:
         if not np.any(o.velocity):
             return o.value(xy)
         return np.array([o.value(q[None, :], tk)[0] for q, tk in zip(xy, t)])
+
+
+def _value_grad_at_times(o: ObstacleImplicit, pts: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """varphi and its gradient at points (K, d) reached at times (K,): a centre moving at constant
+    velocity gives varphi(p, t) = varphi(p - v (t - stamp), stamp)."""
+    return o.value_grad(pts - (t[:, None] - o.stamp) * o.velocity, o.stamp)
 
 
 class GuidancePlanner(PlannerBase):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vflpcd.core.guidance.fairing import SPACING, _solve_convex, fair_path, half_planes
+from vflpcd.core.guidance.fairing import SPACING, Region, _solve_convex, fair_path, half_planes
 from vflpcd.core.guidance.implicit import ObstacleImplicit
 from vflpcd.core.guidance.speed import menger_curvature
 from vflpcd.core.shapes import Circle
@@ -15,13 +15,9 @@ def _obstacle(center, radius=1.0, velocity=(0.0, 0.0)):
 
 
 def _values(obstacles):
-    def f(pts, t):
-        out = []
-        for o in obstacles:
-            v, g = o.value_grad(pts - (t[:, None] - o.stamp) * o.velocity, o.stamp)
-            out.append((v, g, o.c))
-        return out
-    return f
+    """The obstacles' repulsive regions, each evaluated where its centre is when a point is reached."""
+    return [Region(lambda pts, t, o=o: o.value_grad(pts - (t[:, None] - o.stamp) * o.velocity, o.stamp), o.c)
+            for o in obstacles]
 
 
 def _detour(obstacle, length=40.0, step=0.1):
