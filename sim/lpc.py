@@ -63,17 +63,20 @@ def compensator_for(model) -> OnlineCompensator:
     return OnlineCompensator(comp, hyp, nu=0.05, m_max=48, n_max=400)
 
 
-def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str = "vflpc") -> VFLPC:
-    """VF-LPC for ``scenario`` with the shipped model and config; ``solver`` replaces Eb-RHRL."""
+def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str = "vflpc",
+               model_path: str | Path | None = None, period: float | None = None) -> VFLPC:
+    """VF-LPC for ``scenario`` with the shipped model (or ``model_path``) and config; ``solver``
+    replaces Eb-RHRL; ``period``: the control tick period (default the model's dt)."""
     params = load_params(scenario.platform)
-    model = load_koopman(config_dir() / "models" / MODELS[scenario.platform])
+    model = load_koopman(model_path or config_dir() / "models" / MODELS[scenario.platform])
+    period = model.dt if period is None else float(period)
     planner_cls = GuidancePlanner if scenario.dim == 2 else GuidancePlanner3D
     planner = planner_cls(scenario.path, scenario.guidance, scenario.v_desired, scenario.a_lat_max,
                           scenario.footprint.radius, model.dt, kappa_limit=curvature_limit(scenario))
     if compensation and not np.isclose(scenario.control_period, model.dt):
         raise ValueError(f"GP compensation learns one-model-step transitions: scenario {scenario.name!r} runs "
                          f"every {scenario.control_period} s, the model steps {model.dt} s")
-    return VFLPC(planner, model, params, limits_for(scenario, model.dt), scenario.footprint.radius,
+    return VFLPC(planner, model, params, limits_for(scenario, period), scenario.footprint.radius,
                  scenario.guidance.safety_margin, solver=solver,
                  compensator=compensator_for(model) if compensation else None, name=name,
-                 state_names=make_plant(scenario, 0).state_names)
+                 state_names=make_plant(scenario, 0).state_names, period=period)

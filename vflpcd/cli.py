@@ -69,6 +69,42 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
     b.set_defaults(func=cmd_bench_variants)
 
+    p = sub.add_parser("run", help="run a mission: the daemon (fixed-rate VF-LPC loop, workers, telemetry, log)")
+    p.add_argument("mission", type=Path, help="mission file (config/missions/*.toml)")
+    p.add_argument("--log-dir", type=Path, default=None, help="flight-log folder (default: the mission's log.dir)")
+    p.add_argument("--plot", action="store_true", help="also render the flight log to PNG at the end")
+    p.add_argument("--drill", default=None, metavar="KIND@SECONDS",
+                   help="inject a fault at a mission time to exercise the failsafe (stall, error, overrun, nan, "
+                        "freeze, nan_state, link)")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("check", help="validate a mission file without running it")
+    p.add_argument("mission", type=Path)
+    p.set_defaults(func=cmd_check)
+
+    p = sub.add_parser("plot", help="render a flight log (MCAP) to PNG")
+    p.add_argument("log", type=Path)
+    p.add_argument("--out", type=Path, default=None, help="PNG path (default: beside the log)")
+    p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser("watch", help="live table of a running daemon's telemetry (Zenoh)")
+    p.add_argument("vehicle_id")
+    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT", help="Zenoh endpoint to listen on")
+    p.add_argument("--duration", type=float, default=None, help="seconds to watch (default: until Ctrl-C)")
+    p.set_defaults(func=cmd_watch)
+
+    b = bench.add_parser("loop", help="the daemon's loop timing at a fixed rate with telemetry, replans and GP refits")
+    b.add_argument("--mission", type=Path, default=None,
+                   help="mission (default config/missions/bench_loop.toml: racing_track, VF-LPC with the GP)")
+    b.add_argument("--rate", type=float, default=100.0, help="loop rate, Hz (default 100)")
+    b.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
+    b.add_argument("--executor", choices=("process", "thread"), default=None,
+                   help="worker executor (default: the mission's)")
+    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    b.set_defaults(func=cmd_bench_loop)
+
     p = sub.add_parser("scenarios", help="list the scenarios in config/scenarios")
     p.set_defaults(func=cmd_scenarios)
 
@@ -180,6 +216,63 @@ def cmd_bench_dynamics(args) -> int:
     model = load_koopman(path, state_names=("X", "Y", "psi", "vx", "vy", "omega"), control_names=("a_x", "delta_f"))
     bench_dynamics(model, args.out, args.seed)
     return 0
+
+
+def cmd_run(args) -> int:
+    from vflpcd.drill import Drill
+    from vflpcd.flightlog import read_flight_log
+    from vflpcd.mission import load_mission
+    from vflpcd.run import run_mission
+    from vflpcd.summary import summary_lines
+
+    drill = Drill.parse(args.drill) if args.drill else None
+    mission = load_mission(args.mission)
+    result = run_mission(mission, drill=drill, log_dir=args.log_dir)
+    if result.log_path is not None and result.log_path.exists():
+        log = read_flight_log(result.log_path)
+        print("\n".join(summary_lines(log, mission.scenario, result.outcome)))
+        if args.plot:
+            from vflpcd.logplot import plot_flight_log
+
+            print(f"wrote {plot_flight_log(log, result.log_path.with_suffix('.png'))}")
+    else:
+        print(f"outcome: {result.outcome.reason} (exit code {result.outcome.code})")
+    return result.outcome.code
+
+
+def cmd_check(args) -> int:
+    from vflpcd.mission import build_controller, load_mission
+    from vflpcd.run import build_platform
+
+    mission = load_mission(args.mission)
+    controller = build_controller(mission)
+    build_platform(mission)
+    print(f"{mission.file}: ok: vehicle {mission.vehicle_id}, {mission.platform.kind} platform, route "
+          f"{mission.scenario.name} ({mission.scenario.platform}), controller {controller.name} at "
+          f"{mission.loop.rate_hz:g} Hz, {mission.workers.executor} workers, telemetry "
+          f"{'on' if mission.telemetry.enabled else 'off'}, log in {mission.log_dir}")
+    return 0
+
+
+def cmd_plot(args) -> int:
+    from vflpcd.logplot import main as plot_main
+
+    plot_main(args.log, args.out)
+    return 0
+
+
+def cmd_watch(args) -> int:
+    from vflpcd.watch import watch
+
+    return watch(args.vehicle_id, connect=tuple(args.connect), listen=tuple(args.listen), duration_s=args.duration)
+
+
+def cmd_bench_loop(args) -> int:
+    if not (1.0 <= args.rate <= 200.0) or args.duration <= 0:
+        raise ConfigError("command line", "--rate", "expected a rate in [1, 200] Hz and a positive duration")
+    from vflpcd.benchloop import bench_loop
+
+    return bench_loop(args.mission, args.rate, args.duration, args.executor, args.out)
 
 
 def cmd_scenarios(args) -> int:

@@ -18,9 +18,15 @@ Every ``step(state, t, obstacles)``:
    range, is replaced by the terminal LQR law u~ = -K_P x~ (K_P from the DARE that gives P),
    counted in ``fallbacks``, and the solver's weights are reset.
 
-GP samples are offered to the compensator every step (``OnlineCompensator.observe``, cheap);
-the refit is worker work too: ``background()`` runs it when due (the offline runner calls it after
-each timed step, the daemon on its model worker).
+GP samples are offered to the compensator every model step (``OnlineCompensator.observe``, cheap;
+when the control period is a fraction 1/k of the model's dt, every k-th tick); the refit is worker
+work too: ``background()`` runs it when due (the offline runner calls it after each timed step).
+
+Worker work as jobs (the daemon's workers, possibly in another process): ``take_replan()`` hands
+out the due replan as a picklable ``ReplanJob``, ``plan_job(planner, job)`` runs it anywhere, and
+``install_plan(job, result)`` (or ``replan_failed``) takes the result back between two ticks;
+``take_refit()`` / ``refit_job`` / ``install_model`` do the same for the GP refit.
+``background()`` is these steps in sequence.
 """
 
 from __future__ import annotations
@@ -37,13 +43,47 @@ from vflpcd.core.control.error_model import ErrorModel, Limits, TickFrame
 from vflpcd.core.control.game_region import threats
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
-from vflpcd.core.dynamics.compensation import OnlineCompensator
+from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob, refit_job
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.tomlread import Table
 
 log = logging.getLogger("vflpcd.core.vflpc")
+
+
+@dataclass(frozen=True)
+class ReplanJob:
+    """A due guidance replan: path arc length s of the robot, its position pos (d,), velocity
+    vel (d,), heading (rad, 2-D only) at time t, and the obstacles it was due for."""
+
+    s: float
+    pos: np.ndarray
+    vel: np.ndarray
+    heading: float | None
+    t: float
+    obstacles: tuple[ObstacleState, ...]
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """A replan's outcome: the plan and whether its stretch ends the (open) path."""
+
+    plan: object
+    ends_path: bool
+
+
+def plan_job(planner, job: ReplanJob) -> PlanResult:
+    """Run a replan (worker side; raises GuidanceError when no plan exists)."""
+    statics = [o for o in job.obstacles if not o.moving]
+    movers = [o for o in job.obstacles if o.moving]
+    prepared = planner.prepare(job.s, statics)
+    speed = float(np.linalg.norm(job.vel))
+    if job.heading is not None:
+        plan = planner.plan(prepared, job.pos, job.t, speed, movers, heading=job.heading)
+    else:
+        plan = planner.plan(prepared, job.pos, job.t, speed, movers)
+    return PlanResult(plan, bool(prepared.ends_path))
 
 
 @dataclass(frozen=True)
@@ -161,8 +201,9 @@ class VFLPC:
     def __init__(self, planner, model: LiftedLinearModel, params: VFLPCParams, limits: Limits,
                  body_radius: float, safety_margin: float, solver: HorizonSolver | None = None,
                  compensator: OnlineCompensator | None = None, name: str = "vflpc",
-                 state_names: Sequence[str] | None = None) -> None:
+                 state_names: Sequence[str] | None = None, period: float | None = None) -> None:
         self.planner, self.model, self.params, self.limits = planner, model, params, limits
+        """``period``: the control tick period (default the model's dt); ``limits.du_max`` is per tick."""
         self.state_names = tuple(state_names) if state_names is not None else tuple(model.state_names)
         missing = [n for n in model.state_names if n not in self.state_names]
         if missing:
@@ -170,6 +211,12 @@ class VFLPC:
         self._select = [self.state_names.index(n) for n in model.state_names]
         self.name = name
         self.dt = model.dt
+        self.period = float(period) if period is not None else self.dt
+        every = self.dt / self.period
+        if self.period <= 0 or (compensator is not None and abs(every - round(every)) > 1e-6):
+            raise ValueError(f"the control period {self.period} s must divide the model step {self.dt} s "
+                             f"for the GP to learn model-step transitions")
+        self._observe_every = max(1, int(round(every)))
         self.N = max(1, int(round(params.horizon_s / self.dt)))
         self.dim = planner.dim
         self.errors = em = ErrorModel(model, params.Q_x, params.q_lift, params.R, params.gamma, self.N, limits,
@@ -194,13 +241,15 @@ class VFLPC:
     def reset(self) -> None:
         self.solver.reset()
         self._plan = None
-        self._prepared = None
+        self._ends_path = False
+        self._ticks = 0
         self._signature: dict[str, np.ndarray] = {}
         self._s = None
         self._u_prev: np.ndarray | None = None
         self._last: tuple[TickFrame, np.ndarray] | None = None
         self._since_refit = 0
-        self._pending = None
+        self._pending: ReplanJob | None = None
+        self._last_inputs = None
         self.fallbacks = 0
         self.replans = 0
         self.replan_failures = 0
@@ -208,22 +257,23 @@ class VFLPC:
         self.last_threats: tuple[str, ...] = ()
         self.refits = 0
 
+    def ensure_plan(self, state: np.ndarray, t: float, obstacles: Sequence[ObstacleState] = ()) -> None:
+        """Plan the first reference now if there is none (the daemon does it before its first
+        tick; ``step`` does it otherwise). Raises GuidanceError when no plan exists."""
+        if self._plan is None:
+            state, obstacles, pos, vel = self._inputs(state, obstacles)
+            self._guidance(pos, vel, state, t, obstacles)
+
     def step(self, state: np.ndarray, t: float, obstacles: Sequence[ObstacleState] = ()) -> np.ndarray:
-        state = np.asarray(state, float)
-        if state.shape != (len(self.state_names),) or not np.all(np.isfinite(state)):
-            raise ValueError(f"state must be {len(self.state_names)} finite numbers {self.state_names}, got {state!r}")
-        state = state[self._select]
-        obstacles = tuple(obstacles)
-        for o in obstacles:
-            if not (np.all(np.isfinite(o.center)) and np.all(np.isfinite(o.velocity))) or o.center.shape != (self.dim,):
-                raise ValueError(f"obstacle {o.id!r}: centre and velocity must be {self.dim} finite numbers")
-        pos, vel = self._position(state), self._velocity(state)
-        self._s = self.planner.path.project(pos, self._s).s
+        state, obstacles, pos, vel = self._inputs(state, obstacles)
         self._guidance(pos, vel, state, t, obstacles)
         ref = self._reference(t)
         frame = self.errors.frame(state, ref)
         p_ref_world = ref[:, list(self.errors.layout.position)]
-        self._observe(frame)
+        observe_now = self._ticks % self._observe_every == 0
+        self._ticks += 1
+        if observe_now:
+            self._observe(frame)
         u_prev = self._u_prev if self._u_prev is not None else np.clip(np.zeros(self.model.n_u), self.limits.u_min,
                                                                           self.limits.u_max)
         gp = self.compensator.model if self.compensator is not None else None
@@ -239,23 +289,90 @@ class VFLPC:
         u = np.clip(u, u_prev - self.limits.du_max, u_prev + self.limits.du_max)
         self.solver.shift()
         self._u_prev = u
-        self._last = (frame, u)
+        if observe_now:
+            self._last = (frame, u)
         return u
 
+    def reference_at(self, t: float) -> np.ndarray | None:
+        """The current plan's reference position (d,) at time t; None before the first plan."""
+        if self._plan is None:
+            return None
+        return self._plan.trajectory.sample(np.array([t]))["pos"][0]
+
+    @property
+    def plan_version(self) -> int:
+        return self.replans
+
+    @property
+    def model_version(self) -> int:
+        return self.refits
+
+    # ------------------------------------------------------------------ worker jobs
     def background(self) -> None:
         """Worker work, outside the control tick: the replan that the last step found due (the next
         step uses its result), and the GP refit when enough samples have come in since the last."""
-        if self._pending is not None:
-            pending, self._pending = self._pending, None
-            self._replan(*pending)
+        job = self.take_replan()
+        if job is not None:
+            try:
+                self.install_plan(job, plan_job(self.planner, job))
+            except GuidanceError as exc:
+                self.replan_failed(job, str(exc))
+        refit = self.take_refit()
+        if refit is not None:
+            self.install_model(refit, refit_job(refit))
+
+    def take_replan(self, force_at: float | None = None) -> ReplanJob | None:
+        """The due replan, handed out once (None when none is due). ``force_at``: a time t at which
+        a replan is wanted even if none is due (a periodic refresh): it is made from the last state."""
+        job, self._pending = self._pending, None
+        if job is None and force_at is not None and self._last_inputs is not None:
+            pos, vel, heading, obstacles = self._last_inputs
+            job = ReplanJob(self._s, pos, vel, heading, float(force_at), obstacles)
+        return job
+
+    def install_plan(self, job: ReplanJob, result: PlanResult) -> None:
+        """Take a finished replan (between two ticks); the next step uses it."""
+        self._plan, self._ends_path = result.plan, result.ends_path
+        self._signature = {o.id: o.velocity for o in job.obstacles}
+        self.replans += 1
+
+    def replan_failed(self, job: ReplanJob, reason: str) -> None:
+        """A replan found no plan: the previous reference stays; counted and logged."""
+        self.replan_failures += 1
+        log.warning("event=replan_failed t=%.2f reason=%s", job.t, reason)
+
+    def take_refit(self) -> RefitJob | None:
+        """The GP refit when enough samples have come in since the last one (None otherwise)."""
         c = self.compensator
         if c is None or self._since_refit < self.params.refit_every or c.n_buffered < self.params.refit_min_samples:
-            return
-        self._since_refit = 0
-        c.refit()
+            return None
+        job = c.refit_job()
+        if job is not None:
+            self._since_refit = 0
+        return job
+
+    def install_model(self, job: RefitJob, model) -> None:
+        """Take a finished GP refit (between two ticks)."""
+        self.compensator.install(job, model)
         self.refits += 1
 
     # ------------------------------------------------------------------ pieces
+    def _inputs(self, state: np.ndarray, obstacles: Sequence[ObstacleState]):
+        """Checked model state, obstacles, position and velocity; remembers them for a forced replan."""
+        state = np.asarray(state, float)
+        if state.shape != (len(self.state_names),) or not np.all(np.isfinite(state)):
+            raise ValueError(f"state must be {len(self.state_names)} finite numbers {self.state_names}, got {state!r}")
+        state = state[self._select]
+        obstacles = tuple(obstacles)
+        for o in obstacles:
+            if not (np.all(np.isfinite(o.center)) and np.all(np.isfinite(o.velocity))) or o.center.shape != (self.dim,):
+                raise ValueError(f"obstacle {o.id!r}: centre and velocity must be {self.dim} finite numbers")
+        pos, vel = self._position(state), self._velocity(state)
+        self._s = self.planner.path.project(pos, self._s).s
+        heading = float(state[self.errors.layout.heading]) if self.dim == 2 else None
+        self._last_inputs = (pos, vel, heading, obstacles)
+        return state, obstacles, pos, vel
+
     def _position(self, state: np.ndarray) -> np.ndarray:
         return state[list(self.errors.layout.position)]
 
@@ -276,37 +393,17 @@ class VFLPC:
         """Replan now if there is no reference yet, else leave a due replan to ``background``."""
         plan = self._plan
         left = -np.inf if plan is None else plan.trajectory.t[-1] - t
-        finished = plan is not None and plan.reached and self._prepared is not None and self._prepared.ends_path
+        finished = plan is not None and plan.reached and self._ends_path
         due = plan is None or self._changed(obstacles) or (
             not finished and left < self.N * self.dt + self.params.end_margin)
         if not due:
             return
         heading = float(state[self.errors.layout.heading]) if self.dim == 2 else None
+        job = ReplanJob(self._s, pos, vel, heading, t, obstacles)
         if plan is None:
-            self._replan(pos, vel, heading, t, obstacles)
+            self.install_plan(job, plan_job(self.planner, job))   # no reference yet: plan at once
         else:
-            self._pending = (pos, vel, heading, t, obstacles)
-
-    def _replan(self, pos, vel, heading: float | None, t: float, obstacles) -> None:
-        plan = self._plan
-        statics = [o for o in obstacles if not o.moving]
-        movers = [o for o in obstacles if o.moving]
-        try:
-            prepared = self.planner.prepare(self._s, statics)
-            speed = float(np.linalg.norm(vel))
-            if heading is not None:
-                new = self.planner.plan(prepared, pos, t, speed, movers, heading=heading)
-            else:
-                new = self.planner.plan(prepared, pos, t, speed, movers)
-        except GuidanceError as exc:
-            if plan is None:
-                raise
-            self.replan_failures += 1
-            log.warning("event=replan_failed t=%.2f reason=%s", t, exc)
-            return
-        self._plan, self._prepared = new, prepared
-        self._signature = {o.id: o.velocity for o in obstacles}
-        self.replans += 1
+            self._pending = job
 
     def _reference(self, t: float) -> np.ndarray:
         """World reference states (N + 1, n_x) at t + tau dt, in the model's state order."""

@@ -11,7 +11,10 @@ GP input z = [Upsilon[z_index], u] (n_z = len(z_index) + n_u), GP output d (n_y,
 buffer of recent finite samples (the training set of the next refit) and the current
 immutable ``FITCGP``. ``observe`` is the cheap per-step call (O(n_y m^2)): every finite
 sample is folded into the current GP with ``add_sample`` and offered to the ALD dictionary.
-``refit`` is the worker call; it builds a new GP and hands it over by one assignment.
+``refit`` is the worker call; it builds a new GP and hands it over by one assignment. Split
+for a worker in another process: ``refit_job()`` snapshots what the refit needs (a picklable
+``RefitJob``), ``refit_job(job)`` (module function) fits anywhere, ``install(job, model)`` hands
+the result over and replays the samples that arrived meanwhile.
 """
 
 from __future__ import annotations
@@ -102,6 +105,26 @@ class KoopmanCompensation:
         return self.A + self.B_d @ dm_dU, self.B + self.B_d @ J[:, nx:]
 
 
+class RefitJob(NamedTuple):
+    """What one refit needs: the sample sequence number at the snapshot, the inducing inputs
+    Zm (m, n_z), the training set Z (n, n_z), Y (n, n_y), the previous model, the starting
+    hyper-parameters and the refit options."""
+
+    seq0: int
+    Zm: np.ndarray
+    Z: np.ndarray
+    Y: np.ndarray
+    prev: FITCGP | None
+    hyp0: SEHyper
+    options: dict
+
+
+def refit_job(job: RefitJob) -> FITCGP | None:
+    """Run a refit snapshot (worker side, any process): the new model, or ``job.prev`` when the
+    fit is rejected."""
+    return refit(job.prev, job.Zm, job.Z, job.Y, job.hyp0, **job.options)
+
+
 class OnlineCompensator:
     """ALD dictionary + FIFO training buffer + current immutable FITC GP.
 
@@ -159,20 +182,28 @@ class OnlineCompensator:
         """Worker call: hyper-parameters + FITC posterior on the buffer with the dictionary as
         inducing inputs. On an ill-conditioned result the previous model is kept (logged by
         ``sparse_gp.refit``). Returns the model now current."""
+        job = self.refit_job()
+        if job is None:
+            return self._model
+        return self.install(job, refit_job(job))
+
+    def refit_job(self) -> RefitJob | None:
+        """A snapshot for ``refit_job`` (None while the buffer or the dictionary is empty)."""
         with self._lock:
             if not self._buffer or self.dictionary.m == 0:
-                return self._model
-            seq0 = self._seq
-            Z = np.array([s[1] for s in self._buffer])
-            Y = np.array([s[2] for s in self._buffer])
-            Zm = self.dictionary.points
+                return None
             prev = self._model
-        hyp0 = prev.hyp if prev is not None else self.hyp0
-        new = refit(prev, Zm, Z, Y, hyp0, **self._refit_kw)
+            return RefitJob(self._seq, self.dictionary.points, np.array([s[1] for s in self._buffer]),
+                            np.array([s[2] for s in self._buffer]), prev,
+                            prev.hyp if prev is not None else self.hyp0, dict(self._refit_kw))
+
+    def install(self, job: RefitJob, new: FITCGP | None) -> FITCGP | None:
+        """Hand a refit's model over, with the samples observed since its snapshot folded in.
+        Returns the model now current."""
         with self._lock:
-            if new is not prev and new is not None:
+            if new is not job.prev and new is not None:
                 for seq, z, d in self._buffer:           # samples that arrived meanwhile
-                    if seq > seq0:
+                    if seq > job.seq0:
                         new = new.add_sample(z, d)
                 self._model = new
             return self._model

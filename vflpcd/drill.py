@@ -1,0 +1,73 @@
+"""Fault drills: inject one fault into a running mission to see the failsafe act (bench and tests).
+
+``--drill KIND@SECONDS`` (``vflpcd run``) starts fault KIND at mission time SECONDS:
+- controller faults: ``stall`` (one step hangs for ``STALL_S``), ``error`` (every step raises),
+  ``overrun`` (every step takes 1.5 control periods), ``nan`` (the command becomes NaN);
+- platform faults (the in-process platform only): ``freeze`` (the state stops updating),
+  ``nan_state`` (non-finite states), ``link`` (the driver reports a lost link).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from vflpcd.errors import ConfigError
+
+CONTROLLER_FAULTS = ("stall", "error", "overrun", "nan")
+PLATFORM_FAULTS = {"freeze": "freeze", "nan_state": "nan", "link": "link"}
+STALL_S = 1.5
+
+
+@dataclass(frozen=True)
+class Drill:
+    kind: str
+    at_s: float
+
+    @classmethod
+    def parse(cls, spec: str) -> "Drill":
+        kind, _, at = spec.partition("@")
+        kinds = CONTROLLER_FAULTS + tuple(PLATFORM_FAULTS)
+        try:
+            at_s = float(at)
+        except ValueError:
+            at_s = -1.0
+        if kind not in kinds or not np.isfinite(at_s) or at_s < 0:
+            raise ConfigError("command line", "--drill", f"expected KIND@SECONDS with KIND one of {', '.join(kinds)}, "
+                                                         f"got {spec!r}")
+        return cls(kind, at_s)
+
+
+class DrillController:
+    """Wraps a controller; from mission time ``drill.at_s`` on, injects the drill's fault."""
+
+    def __init__(self, inner, drill: Drill, platform, period_s: float) -> None:
+        if drill.kind in PLATFORM_FAULTS and not hasattr(platform, "inject"):
+            raise ConfigError("command line", "--drill", f"{drill.kind} needs a platform that injects faults (inproc)")
+        self.inner, self.drill, self.platform, self.period_s = inner, drill, platform, period_s
+        self.name = inner.name
+        self.fired = False
+
+    def __getattr__(self, name):              # the inner controller's job API, counters and plan
+        return getattr(self.inner, name)
+
+    def reset(self) -> None:
+        self.inner.reset()
+
+    def step(self, state, t, obstacles=()):
+        if t >= self.drill.at_s:
+            first, self.fired = not self.fired, True
+            kind = self.drill.kind
+            if kind in PLATFORM_FAULTS and first:
+                self.platform.inject(PLATFORM_FAULTS[kind])
+            elif kind == "stall" and first:
+                time.sleep(STALL_S)
+            elif kind == "error":
+                raise RuntimeError("drill: injected controller error")
+            elif kind == "overrun":
+                time.sleep(1.5 * self.period_s)
+            elif kind == "nan":
+                return np.full_like(np.asarray(self.inner.step(state, t, obstacles), dtype=float), np.nan)
+        return self.inner.step(state, t, obstacles)

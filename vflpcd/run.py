@@ -1,0 +1,164 @@
+"""``vflpcd run``: a mission wired into the daemon (the composition root of a run).
+
+Builds, from a validated ``Mission``: the platform driver, the controller (VF-LPC by default) at
+the mission's rate, the mission's obstacles (``sim.obstacle_world``: static ones, and moving ones
+with their triggers), progress along the route, the workers, the flight recorder, the Zenoh
+telemetry and perception input, and the daemon; runs it and returns the outcome and the log.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vflpcd.daemon.config import LoopConfig
+from vflpcd.daemon.control import ControlLoop, Sinks
+from vflpcd.daemon.progress import Progress
+from vflpcd.daemon.records import MissionHeader
+from vflpcd.daemon.service import Daemon, Outcome
+from vflpcd.drill import Drill, DrillController
+from vflpcd.errors import ConfigError
+from vflpcd.mission import Mission, build_controller
+
+log = logging.getLogger("vflpcd.run")
+
+
+@dataclass
+class RunResult:
+    outcome: Outcome
+    log_path: Path | None
+    mission: Mission
+
+
+def build_platform(mission: Mission):
+    """The mission's platform driver (ConfigError for bad options or a driver not in this build)."""
+    kind = mission.platform.kind
+    if kind == "inproc":
+        from drivers.inproc import inproc_from_scenario
+
+        return inproc_from_scenario(mission.scenario, mission.platform.options, mission.file)
+    raise ConfigError(mission.file, "platform.kind", f"the {kind} driver is not available in this build (use inproc)")
+
+
+def position_index(state_names) -> list[int]:
+    names = [n for n in ("X", "Y", "Z") if n in state_names]
+    return [state_names.index(n) for n in names]
+
+
+def mission_obstacles(scenario, state_names):
+    """obstacles(t, state): the mission's obstacles at mission time t (triggers fire from the state)."""
+    from sim.obstacle_world import ObstacleWorld
+
+    world = ObstacleWorld(scenario.obstacles)
+    index = position_index(state_names)
+
+    def obstacles(t: float, state: np.ndarray):
+        world.update(t, np.asarray(state)[index])
+        return world.snapshot(t)
+    return obstacles
+
+
+def mission_header(mission: Mission, platform, controller) -> MissionHeader:
+    from sim.plot import top_view
+
+    sc = mission.scenario
+    s = np.linspace(0.0, sc.path.length, max(2, int(sc.path.length / 0.5)))
+    path = sc.path.point_at(s)
+    obstacles = tuple({"id": o.id, "center": o.center.tolist(), "velocity": o.velocity.tolist(),
+                       "radius": float(o.shape.bounding_radius()), "trigger": o.trigger,
+                       "outline": top_view(o.shape).outline(o.center[:2], o.yaw, 48).tolist()}
+                      for o in sc.obstacles)
+    return MissionHeader(vehicle_id=mission.vehicle_id, platform=mission.platform.kind, controller=controller.name,
+                         dim=sc.dim, rate_hz=mission.loop.rate_hz, state_names=tuple(platform.state_names),
+                         control_names=tuple(platform.control_names),
+                         path=tuple(tuple(map(float, p)) for p in np.asarray(path)), obstacles=obstacles,
+                         mission_file=str(mission.file), model_file=str(mission.model_path or ""))
+
+
+def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float | None = None,
+                log_dir: Path | None = None, stop_after_s: float | None = None) -> RunResult:
+    """Run the mission to its end (complete, failsafe, a signal, or ``stop_after_s`` seconds of
+    control). ``rate_hz`` and ``log_dir`` override the mission's."""
+    from vflpcd.daemon.recorder import FlightRecorder, log_path
+    from vflpcd.daemon.workers import Workers
+
+    loop_cfg = mission.loop if rate_hz is None else LoopConfig(rate_hz, mission.loop.sched_fifo,
+                                                              mission.loop.priority, mission.loop.manual_gc)
+    platform = build_platform(mission)
+    controller = build_controller(mission) if rate_hz is None else _with_rate(mission, rate_hz)
+    if drill is not None:
+        controller = DrillController(controller, drill, platform, loop_cfg.period_s)
+    header = mission_header(mission, platform, controller)
+    path = log_path(log_dir or mission.log_dir, mission.vehicle_id)
+    recorder = FlightRecorder(path, header)
+    closers = [recorder.close]
+    telemetry = perception = None
+    workers = Workers(mission.workers.executor, controller.planner) if hasattr(controller, "take_replan") else None
+    if workers is not None:
+        closers.insert(0, workers.close)
+    try:
+        if mission.telemetry.enabled:
+            telemetry, perception = _open_telemetry(mission, platform, header, closers)
+    except ConfigError:
+        for close in closers:
+            close()
+        raise
+    sc = mission.scenario
+    progress = Progress(sc.path, sc.goal_progress, position_index(platform.state_names))
+    obstacles = mission_obstacles(sc, platform.state_names)
+    sinks = Sinks(recorder=recorder, telemetry=telemetry)
+
+    def make_loop(aio) -> ControlLoop:
+        return ControlLoop(platform, controller, loop_cfg, mission.workers, mission.failsafe, aio,
+                           obstacles=obstacles, perception=perception, progress=progress, workers=workers,
+                           sinks=sinks)
+
+    def first_plan(state):
+        if hasattr(controller, "ensure_plan"):
+            controller.ensure_plan(state, 0.0, obstacles(0.0, state))
+
+    daemon = Daemon(platform, make_loop, first_plan=first_plan, workers=workers, closers=closers,
+                    telemetry=telemetry, stop_after_s=stop_after_s)
+    if perception is not None:
+        perception.on_reject = lambda reason: daemon.loop and daemon.loop.event("perception_rejected",
+                                                                                 reason=reason[:200])
+    outcome = asyncio.run(daemon.run())
+    return RunResult(outcome, path, mission)
+
+
+def _with_rate(mission: Mission, rate_hz: float):
+    from dataclasses import replace
+
+    return build_controller(replace(mission, loop=replace(mission.loop, rate_hz=rate_hz)))
+
+
+def _open_telemetry(mission: Mission, platform, header: MissionHeader, closers: list):
+    from vflpcd.daemon.telemetry import TelemetryPublisher, open_session
+
+    try:
+        session = open_session(mission.telemetry)
+    except ConfigError as exc:
+        raise ConfigError(mission.file, exc.field, exc.message) from None
+    closers.append(session.close)
+    telemetry = TelemetryPublisher(session, mission.vehicle_id, mission.telemetry,
+                                   state_names=platform.state_names, control_names=platform.control_names)
+    closers.insert(len(closers) - 1, telemetry.close)
+    telemetry.offer_header(header)
+    perception = None
+    if mission.telemetry.perception:
+        from vflpcd.daemon.perception import PerceptionInput
+
+        perception = PerceptionInput(session, mission.vehicle_id, mission.scenario.dim,
+                                     mission.telemetry.perception_max_age_s)
+        closers.insert(len(closers) - 1, perception.close)
+    return telemetry, perception
+
+
+def print_outcome(result: RunResult, out=sys.stdout) -> None:
+    o = result.outcome
+    print(f"outcome                      {o.reason} (exit code {o.code})", file=out)

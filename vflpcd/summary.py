@@ -1,0 +1,74 @@
+"""The end-of-run summary of ``vflpcd run``, computed from its flight log and the mission's route:
+outcome, timing of the fixed-rate loop, worker activity, events, and the least clearance to every
+obstacle (the vehicle's exact footprint against each obstacle's recorded position)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vflpcd.flightlog import FlightLog
+
+
+def clearances(log: FlightLog, scenario) -> dict[str, float]:
+    """Least body clearance (m, negative: contact) to each obstacle over the ticks with a state."""
+    from vflpcd.core.shapes import Circle, Sphere
+
+    names = log.header.state_names
+    idx = [names.index(n) for n in ("X", "Y", "Z")[: scenario.dim]]
+    yaw_i = names.index("psi") if "psi" in names else None
+    shapes = {o.id: (o.shape, o.yaw) for o in scenario.obstacles}
+    out: dict[str, float] = {}
+    ok = np.all(np.isfinite(log.state), axis=1)
+    for oid, centres in log.obstacles.items():
+        shape, yaw = shapes.get(oid, ((Sphere if scenario.dim == 3 else Circle)(log.obstacle_radius[oid]), 0.0))
+        rows = np.flatnonzero(ok & np.all(np.isfinite(centres), axis=1))
+        if len(rows) == 0:
+            continue
+        # coarse pass with bounding circles, exact footprint only near the closest approach
+        d = np.linalg.norm(log.state[rows][:, idx] - centres[rows], axis=1)
+        near = rows[d <= d.min() + 3.0]
+        out[oid] = min(scenario.footprint.clearance(shape, centres[i], yaw, log.state[i, idx],
+                                                    float(log.state[i, yaw_i]) if yaw_i is not None else 0.0)
+                       for i in near)
+    return out
+
+
+def summary_lines(log: FlightLog, scenario, outcome=None) -> list[str]:
+    """The summary as aligned ``label value`` lines."""
+    period = 1.0 / log.header.rate_hz
+    stepped = log.compute_s > 0
+    late, comp = log.lateness_s * 1e3, log.compute_s[stepped] * 1e3
+    lines = []
+
+    def add(label: str, value: str) -> None:
+        lines.append(f"{label:<28} {value}")
+
+    if outcome is not None:
+        add("outcome", f"{outcome.reason} (exit code {outcome.code})")
+    add("vehicle / platform", f"{log.header.vehicle_id} / {log.header.platform} ({log.header.controller})")
+    duration = float(log.t[-1]) if len(log) else 0.0
+    add("ticks", f"{len(log)} at {log.header.rate_hz:g} Hz over {duration:.2f} s")
+    if len(log):
+        add("start lateness p50/p99/max", f"{np.percentile(late, 50):.3f} / {np.percentile(late, 99):.3f} / "
+                                          f"{late.max():.3f} ms")
+    if comp.size:
+        add("compute p50/p99/max", f"{np.percentile(comp, 50):.3f} / {np.percentile(comp, 99):.3f} / "
+                                   f"{comp.max():.3f} ms (period {period * 1e3:g} ms)")
+        add("compute over the period", f"{int(np.sum(comp > period * 1e3))}")
+    add("overruns", f"{int(np.sum(log.overrun))}")
+    if len(log):
+        add("plans / GP models", f"{int(log.plan_version.max())} / {int(log.model_version.max())}")
+    kinds = [e.kind for e in log.events]
+    for kind in ("failsafe", "replan_failed", "worker_error", "perception_rejected"):
+        if kind in kinds:
+            first = next(e for e in log.events if e.kind == kind)
+            add(kind, f"{kinds.count(kind)} (first at t={first.t:.2f} s: {first.detail.get('reason', '')})"[:160])
+    clear = clearances(log, scenario)
+    if clear:
+        worst = min(clear, key=clear.get)
+        add("min clearance", f"{clear[worst]:.2f} m ({worst})")
+        add("collisions", f"{sum(1 for v in clear.values() if v <= 0.0)} obstacles touched")
+    if log.truncated:
+        add("log", "truncated (the writer was killed)")
+    add("log file", str(log.path))
+    return lines
