@@ -1,4 +1,4 @@
-# Quick start: `make demo` (set up, run the demo, print the summary, write the plot)
+# Quick start: `make demo` (set up, run the demo mission through the daemon, print the summary, write the plot)
 #              `make test` (set up, run the whole test suite)
 PYTHON ?= python3
 VENV   := .venv
@@ -14,7 +14,7 @@ $(BIN)/.installed: pyproject.toml
 setup: $(BIN)/.installed
 
 demo: $(BIN)/.installed
-	$(BIN)/vflpcd sim carsim_avoidance --controller vflpc --out results/demo
+	$(BIN)/vflpcd run config/missions/vehicle_inproc.toml --log-dir results/demo --plot
 
 test: $(BIN)/.installed
 	$(BIN)/pytest -q

@@ -61,30 +61,22 @@ def bench_loop(mission_path: Path | None, rate_hz: float, duration_s: float, exe
     mission = load_mission(mission_path or config_dir() / "missions" / "bench_loop.toml")
     if executor is not None:
         mission = replace(mission, workers=replace(mission.workers, executor=executor))
-    counter = None
-    if mission.telemetry.enabled and mission.telemetry.listen:
-        ep = mission.telemetry.listen[0]
-        counter_ep = ep
-        counter = (mission.vehicle_id, counter_ep)
     out.mkdir(parents=True, exist_ok=True)
-    result_holder = {}
-    sub = None
-
-    def start_counter():
-        nonlocal sub
-        if counter is not None:
-            sub = TelemetryCounter(*counter)
-
-    timer = threading.Timer(3.0, start_counter)     # after the daemon's session listens
-    timer.start()
+    counter: list[TelemetryCounter] = []
+    if mission.telemetry.enabled and mission.telemetry.listen:   # subscribe once the daemon listens
+        timer = threading.Timer(3.0, lambda: counter.append(
+            TelemetryCounter(mission.vehicle_id, mission.telemetry.listen[0])))
+        timer.start()
+    else:
+        timer = None
     try:
         result = run_mission(mission, rate_hz=rate_hz, log_dir=out / "logs", stop_after_s=duration_s)
     finally:
-        timer.cancel()
-    counts = dict(sub.counts) if sub is not None else {}
-    if sub is not None:
-        sub.close()
-    result_holder["outcome"] = result.outcome
+        if timer is not None:
+            timer.cancel()
+    counts = dict(counter[0].counts) if counter else {}
+    for c in counter:
+        c.close()
     log = read_flight_log(result.log_path)
     period_ms = 1e3 / rate_hz
     running = log.compute_s > 0
@@ -123,8 +115,8 @@ def _print(f: dict) -> None:
     print(f"{'bin':>14} {'start lateness':>15} {'compute':>9}")
     for (label, a), (_, b) in zip(f["lateness_histogram"], f["compute_histogram"]):
         print(f"{label:>14} {a:>15} {b:>9}")
-    print(f"start lateness p50 / p99 / max   {f['lateness_p50_ms']:.3f} / {f['lateness_p99_ms']:.3f} / "
-          f"{f['lateness_max_ms']:.3f} ms")
+    print(f"start lateness p50 / p99 / max   {f['lateness_p50_ms']:.4f} / {f['lateness_p99_ms']:.4f} / "
+          f"{f['lateness_max_ms']:.4f} ms")
     print(f"compute p50 / p99 / max          {f['compute_p50_ms']:.3f} / {f['compute_p99_ms']:.3f} / "
           f"{f['compute_max_ms']:.3f} ms")
     print(f"overruns {f['overruns']}, skipped deadlines {f['skipped']}, replans {f['replans']} "
@@ -133,5 +125,5 @@ def _print(f: dict) -> None:
     print(f"telemetry received by a live subscriber: {f['telemetry_messages']}")
     print(f"ticks whose compute exceeded the period: {f['compute_over_period']}   "
           f"{'PASS' if f['compute_over_period'] == 0 else 'FAIL'}")
-    print(f"p99 start lateness <= 2 ms: {f['lateness_p99_ms']:.3f} ms   "
+    print(f"p99 start lateness <= 2 ms: {f['lateness_p99_ms']:.4f} ms   "
           f"{'PASS' if f['lateness_p99_ms'] <= 2.0 else 'FAIL'}")

@@ -49,6 +49,7 @@ class DrillController:
         self.inner, self.drill, self.platform, self.period_s = inner, drill, platform, period_s
         self.name = inner.name
         self.fired = False
+        self.fired_ns: int | None = None       # monotonic time at which the fault started
 
     def __getattr__(self, name):              # the inner controller's job API, counters and plan
         return getattr(self.inner, name)
@@ -59,6 +60,8 @@ class DrillController:
     def step(self, state, t, obstacles=()):
         if t >= self.drill.at_s:
             first, self.fired = not self.fired, True
+            if first:
+                self.fired_ns = time.monotonic_ns()
             kind = self.drill.kind
             if kind in PLATFORM_FAULTS and first:
                 self.platform.inject(PLATFORM_FAULTS[kind])

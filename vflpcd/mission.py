@@ -109,7 +109,10 @@ def load_mission(path: str | Path) -> Mission:
 
     lg = root.table("log", {})
     lg.check_known({"dir"})
-    log_dir = Path(lg.string("dir", "logs")).expanduser()
+    try:
+        log_dir = Path(lg.string("dir", "logs")).expanduser()
+    except RuntimeError as exc:             # ~user of an unknown user
+        raise lg.error("dir", str(exc)) from None
 
     return Mission(file=file, vehicle_id=vehicle_id, description=root.string("description", ""),
                    platform=platform, scenario=scenario, controller=controller, model_path=model_path,
@@ -121,8 +124,11 @@ def _find(name: str, mission_file: Path, folder: str, suffix: str, table: Table,
     """A file named in a mission: a path relative to the mission file, else a name in config/FOLDER."""
     candidates = [mission_file.parent / name, config_dir() / folder / name, config_dir() / folder / f"{name}{suffix}"]
     for c in candidates:
-        if c.is_file():
-            return c
+        try:
+            if c.is_file():
+                return c
+        except OSError:                     # e.g. a name longer than the file system allows
+            continue
     raise table.error(key, f"no such file {name!r} (looked in {mission_file.parent} and {config_dir() / folder})")
 
 
@@ -135,12 +141,15 @@ def build_controller(mission: Mission):
         options = {"model_path": mission.model_path, "period": mission.loop.period_s}
     name = mission.controller
     if mission.compensation:
-        if name != "vflpc":
-            raise ConfigError(mission.file, "controller.compensation", f"the online GP is VF-LPC's, not {name}'s")
+        if name != "vflpc" or mission.scenario.platform != "ground":
+            raise ConfigError(mission.file, "controller.compensation",
+                              f"the online GP is VF-LPC's on ground vehicles, not {name}'s on a "
+                              f"{mission.scenario.platform} route")
         name = "vflpc_ml"
     try:
         return make_controller(name, mission.scenario, source=(str(mission.file), "controller.name"), **options)
     except ValueError as exc:
         if isinstance(exc, ConfigError):
             raise
-        raise ConfigError(mission.file, "loop.rate_hz", str(exc)) from None
+        field = "loop.rate_hz" if "period" in str(exc) else "controller.model"
+        raise ConfigError(mission.file, field, str(exc)) from None

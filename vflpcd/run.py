@@ -94,20 +94,20 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
     if drill is not None:
         controller = DrillController(controller, drill, platform, loop_cfg.period_s)
     header = mission_header(mission, platform, controller)
-    path = log_path(log_dir or mission.log_dir, mission.vehicle_id)
-    recorder = FlightRecorder(path, header)
-    closers = [recorder.close]
+    closers: list = []
     telemetry = perception = None
-    workers = Workers(mission.workers.executor, controller.planner) if hasattr(controller, "take_replan") else None
-    if workers is not None:
-        closers.insert(0, workers.close)
+    if mission.telemetry.enabled:         # first: a port in use must not leave an empty log behind
+        telemetry, perception = _open_telemetry(mission, platform, header, closers)
     try:
-        if mission.telemetry.enabled:
-            telemetry, perception = _open_telemetry(mission, platform, header, closers)
+        recorder = FlightRecorder(log_path(log_dir or mission.log_dir, mission.vehicle_id), header)
     except ConfigError:
         for close in closers:
             close()
         raise
+    closers.append(recorder.close)
+    workers = Workers(mission.workers.executor, controller.planner) if hasattr(controller, "take_replan") else None
+    if workers is not None:
+        closers.insert(0, workers.close)
     sc = mission.scenario
     progress = Progress(sc.path, sc.goal_progress, position_index(platform.state_names))
     obstacles = mission_obstacles(sc, platform.state_names)
@@ -128,7 +128,7 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
         perception.on_reject = lambda reason: daemon.loop and daemon.loop.event("perception_rejected",
                                                                                  reason=reason[:200])
     outcome = asyncio.run(daemon.run())
-    return RunResult(outcome, path, mission)
+    return RunResult(outcome, recorder.path, mission)
 
 
 def _with_rate(mission: Mission, rate_hz: float):

@@ -26,6 +26,10 @@ def load_toml(path: str | Path) -> dict[str, Any]:
             return tomllib.load(fh)
     except FileNotFoundError:
         raise ConfigError(path, "<file>", "file not found") from None
+    except OSError as exc:
+        raise ConfigError(path, "<file>", f"cannot read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(path, "<syntax>", f"not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(path, "<syntax>", f"not valid TOML ({exc})") from None
 

@@ -13,7 +13,7 @@ from vflpcd.core.ports import StampedState
 from vflpcd.daemon.config import FailsafePolicy
 
 REASONS = ("link_lost", "no_state", "stale_state", "nonfinite_state", "controller_error", "nonfinite_command",
-           "overrun_streak", "stall", "send_failed")
+           "overrun_streak", "stall")
 
 
 class FailsafeMonitor:

@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import signal
+import threading
 import time
 from collections import deque
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
@@ -29,9 +31,16 @@ log = logging.getLogger("vflpcd.daemon.workers")
 _PLANNER = None      # the guidance planner of this worker (set by the initializer)
 
 
+WORKER_NICE = 10     # workers yield the CPU to the control thread (CFS weight 110 against 1024)
+
+
 def _init_worker(planner) -> None:
     global _PLANNER
     _PLANNER = planner
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WORKER_NICE)   # this thread / process
+    except OSError as exc:
+        log.warning("event=worker_nice_failed reason=%s", exc)
     if multiprocessing.current_process().name != "MainProcess":
         signal.signal(signal.SIGINT, signal.SIG_IGN)   # the daemon shuts its workers down itself
 

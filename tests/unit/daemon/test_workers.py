@@ -1,0 +1,100 @@
+"""Workers: replans and refits run in another process and come back whole; failures are reported,
+a dead worker process is replaced, and nothing blocks the caller."""
+
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from sim.lpc import make_vflpc
+from sim.plants import make_plant
+from sim.scenarios import line_scenario_toml, load_scenario
+from vflpcd.core.guidance.implicit import GuidanceError
+from vflpcd.core.vflpc import plan_job
+from vflpcd.daemon.workers import Workers
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    f = tmp_path_factory.mktemp("w") / "line.toml"
+    f.write_text(line_scenario_toml("line", length=80.0))
+    sc = load_scenario(f)
+    ctl = make_vflpc(sc, compensation=True)
+    plant = make_plant(sc, 0)
+    for k in range(200):                                   # samples for the GP, and a due replan
+        u = ctl.step(plant.state, k * 0.05)
+        plant.step(u, 0.05)
+    workers = Workers("process", ctl.planner)
+    workers.start()
+    yield ctl, workers
+    workers.close()
+
+
+def wait(workers, timeout=30.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        done = workers.collect()
+        if done:
+            return done
+        time.sleep(0.01)
+    raise AssertionError("no job finished")
+
+
+def test_a_replan_in_another_process_equals_the_local_one(setup):
+    ctl, workers = setup
+    job = ctl.take_replan(force_at=10.0)
+    t0 = time.perf_counter()
+    assert workers.submit("replan", job)
+    assert time.perf_counter() - t0 < 0.05                 # submitting does not wait for the plan
+    assert not workers.submit("replan", job)               # one job of a kind at a time
+    (done,) = wait(workers)
+    assert done.kind == "replan" and done.error is None and done.latency_s > 0
+    local = plan_job(ctl.planner, job)
+    np.testing.assert_allclose(done.result.plan.trajectory.sample(np.array([10.5]))["pos"],
+                               local.plan.trajectory.sample(np.array([10.5]))["pos"])
+    before = ctl.replans
+    ctl.install_plan(done.job, done.result)
+    assert ctl.replans == before + 1 and ctl._plan is done.result.plan
+
+
+def test_a_refit_in_another_process_is_installed(setup):
+    ctl, workers = setup
+    ctl._since_refit = ctl.params.refit_every
+    job = ctl.take_refit()
+    assert job is not None and workers.submit("refit", job)
+    (done,) = wait(workers)
+    assert done.error is None and done.result is not None
+    ctl.install_model(done.job, done.result)
+    assert ctl.compensator.model is not None and ctl.refits >= 1
+
+
+def test_a_failing_replan_is_reported_not_raised(setup):
+    ctl, workers = setup
+    job = ctl.take_replan(force_at=11.0)
+    inside = type(job)(job.s, np.array([40.0, 0.0]), job.vel, job.heading, job.t,
+                       (job.obstacles + tuple(make_wall())))
+    assert workers.submit("replan", inside)
+    (done,) = wait(workers)
+    assert isinstance(done.error, GuidanceError)
+
+
+def test_a_killed_worker_is_replaced(setup):
+    ctl, workers = setup
+    job = ctl.take_replan(force_at=12.0)
+    assert workers.submit("replan", job)
+    pid = next(iter(workers._executors["replan"]._processes))
+    os.kill(pid, signal.SIGKILL)
+    (done,) = wait(workers)
+    assert done.error is not None and workers.restarts == 1
+    assert workers.submit("replan", job)                   # a fresh pool takes the next job
+    (done,) = wait(workers, 60.0)
+    assert done.error is None
+
+
+def make_wall():
+    from vflpcd.core.obstacles import ObstacleState
+    from vflpcd.core.shapes import Circle
+
+    return [ObstacleState("wall", Circle(3.0), np.array([40.0, 0.0]), 0.0, np.zeros(2), 0.0)]
