@@ -18,13 +18,14 @@ def free_port() -> int:
 
 def write_mission(folder: Path, *, route: str | None = None, length: float = 200.0, rate_hz: float = 50.0,
                   executor: str = "thread", telemetry_port: int | None = None, hold: float = 1.5,
-                  extra: str = "", platform_extra: str = "", compensation: bool = False) -> Path:
+                  extra: str = "", platform_extra: str = "", compensation: bool = False,
+                  telemetry_extra: str = "") -> Path:
     """A mission on a straight road of ``length`` m (or the named ``route``), in-process vehicle,
     VF-LPC; telemetry on ``telemetry_port`` (off without one); logs in folder/logs."""
     if route is None:
         (folder / "line.toml").write_text(line_scenario_toml("line", length=length, speed=5.0, t_max=200.0))
         route = "line.toml"
-    telemetry = (f'[telemetry]\nenabled = true\nlisten = ["tcp/127.0.0.1:{telemetry_port}"]\nrate_hz = 20.0\n'
+    telemetry = (f'[telemetry]\nenabled = true\nlisten = ["tcp/127.0.0.1:{telemetry_port}"]\nrate_hz = 20.0\n{telemetry_extra}\n'
                  if telemetry_port else "[telemetry]\nenabled = false\n")
     text = f"""vehicle_id = "t1"
 [platform]

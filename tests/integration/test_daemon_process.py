@@ -12,7 +12,6 @@ import threading
 import time
 from pathlib import Path
 
-import pytest
 import zenoh
 
 from vflpcd.flightlog import read_flight_log

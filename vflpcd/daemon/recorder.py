@@ -33,7 +33,7 @@ from typing import Any
 
 from mcap.writer import CompressionType, IndexType, Writer
 
-from vflpcd.daemon.records import Event, MissionHeader, TickRecord
+from vflpcd.daemon.records import Event, MissionHeader, TickRecord, json_bytes
 from vflpcd.errors import ConfigError
 
 log = logging.getLogger("vflpcd.daemon.recorder")
@@ -283,11 +283,4 @@ class FlightRecorder:
 
 
 def _encode(rec: Any) -> bytes:
-    return json.dumps(rec.to_json(), separators=(",", ":"), default=_json_default).encode()
-
-
-def _json_default(value: Any) -> Any:
-    """numpy scalars and arrays (``.tolist()``) in a record; anything else is an error."""
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    raise TypeError(f"{type(value).__name__} is not JSON serializable")
+    return json_bytes(rec.to_json())

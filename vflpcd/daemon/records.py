@@ -3,14 +3,42 @@
 
 Every record is a frozen dataclass of plain values (floats, ints, strings, tuples) so that it
 can cross threads without copying and ``to_json()`` gives the JSON object that the MCAP log and
-the Zenoh payloads carry (schemas in ``docs/telemetry.md``). Times: ``t`` is mission time in
+the Zenoh payloads carry (schemas in ``docs/telemetry.md``), encoded by ``json_bytes`` as strict
+JSON (NaN and infinities become null, which readers turn back into NaN). Times: ``t`` is mission time in
 seconds since the control loop started; ``stamp_ns`` is ``time.monotonic_ns()``.
 """
 
 from __future__ import annotations
 
+import json
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
+
+
+def json_bytes(obj: Any) -> bytes:
+    """Compact UTF-8 JSON; NaN/inf become null, numpy scalars/arrays plain numbers/lists."""
+    try:
+        text = json.dumps(obj, separators=(",", ":"), allow_nan=False, default=_default)
+    except ValueError:
+        text = json.dumps(_finite(obj), separators=(",", ":"), allow_nan=False, default=_default)
+    return text.encode()
+
+
+def _default(value: Any) -> Any:
+    if hasattr(value, "tolist"):  # numpy scalars and arrays
+        return _finite(value.tolist())
+    return str(value)
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
 
 
 def _plain(value: Any) -> Any:

@@ -9,7 +9,8 @@
 5. ends when the mission is complete or a failsafe has held for ``failsafe.hold`` seconds, or on
    SIGTERM/SIGINT (safe stop, flush the log, exit 0 within 2 s).
 Exit codes: 0 stopped or mission complete, 3 failsafe latched (systemd does not restart it),
-1 the platform never connected.
+2 no first plan from where the vehicle is (the route does not fit), 1 the platform never
+connected or start-up failed.
 """
 
 from __future__ import annotations
@@ -20,12 +21,13 @@ import signal
 import time
 from dataclasses import dataclass
 
+from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.daemon.control import COMPLETE, FAILSAFE, RUNNING, STOPPING, ControlLoop
 from vflpcd.daemon.sdnotify import SystemdNotifier
 
 log = logging.getLogger("vflpcd.daemon")
 
-EXIT_OK, EXIT_ERROR, EXIT_FAILSAFE = 0, 1, 3
+EXIT_OK, EXIT_ERROR, EXIT_BAD_INPUT, EXIT_FAILSAFE = 0, 1, 2, 3
 
 
 @dataclass
@@ -88,11 +90,23 @@ class Daemon:
             await self._shutdown(loop, started=False)
             return Outcome(EXIT_OK, self._signal, loop)
         self.notifier.status("planning the first reference")
-        if self.first_plan is not None:
-            await aio.run_in_executor(None, self.first_plan, first.state)
-        if self.workers is not None:
-            await aio.run_in_executor(None, self.workers.start)
-        await self.platform.enable()
+        try:
+            if self.first_plan is not None:
+                await aio.run_in_executor(None, self.first_plan, first.state)
+        except (GuidanceError, ValueError) as exc:     # e.g. the vehicle starts inside an obstacle
+            reason = f"no first plan from the vehicle's state: {exc}"
+            log.error("event=first_plan_failed reason=%s", reason)
+            await self._shutdown(loop, started=False)
+            return Outcome(EXIT_BAD_INPUT, reason, loop)
+        try:
+            if self.workers is not None:
+                await aio.run_in_executor(None, self.workers.start)
+            await self.platform.enable()
+        except Exception as exc:
+            reason = f"start-up failed: {type(exc).__name__}: {exc}"
+            log.exception("event=startup_failed")
+            await self._shutdown(loop, started=False)
+            return Outcome(EXIT_ERROR, reason, loop)
         loop.start()
         if self.stop_after_s is not None:
             aio.call_later(self.stop_after_s, self.request_stop, f"ran {self.stop_after_s:g} s")

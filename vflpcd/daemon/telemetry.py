@@ -18,7 +18,6 @@ from __future__ import annotations
 import ipaddress
 import json
 import logging
-import math
 import queue
 import re
 import threading
@@ -28,7 +27,7 @@ from typing import Any
 
 import zenoh
 
-from vflpcd.daemon.records import Event, MissionHeader, TickRecord
+from vflpcd.daemon.records import json_bytes, Event, MissionHeader, TickRecord
 from vflpcd.errors import ConfigError
 from vflpcd.tomlread import Table
 
@@ -190,31 +189,6 @@ def _first_line(exc: BaseException) -> str:
 
 
 # --------------------------------------------------------------------------- payloads
-def json_bytes(obj: Any) -> bytes:
-    """Compact UTF-8 JSON; NaN/inf become null, numpy scalars/arrays plain numbers/lists."""
-    try:
-        text = json.dumps(obj, separators=(",", ":"), allow_nan=False, default=_default)
-    except ValueError:
-        text = json.dumps(_finite(obj), separators=(",", ":"), allow_nan=False, default=_default)
-    return text.encode()
-
-
-def _default(value: Any) -> Any:
-    if hasattr(value, "tolist"):  # numpy scalars and arrays
-        return _finite(value.tolist())
-    return str(value)
-
-
-def _finite(value: Any) -> Any:
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
-    return value
-
-
 def tick_payloads(rec: TickRecord, state_names=(), control_names=()) -> dict[str, dict[str, Any]]:
     """Topic -> JSON object for the five tick topics (fields in ``docs/telemetry.md``)."""
     head = {"k": rec.k, "t": rec.t, "stamp_ns": rec.stamp_ns}

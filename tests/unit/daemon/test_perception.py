@@ -112,7 +112,7 @@ INVALID = [
     (message([obstacle("a"), obstacle("a")]), "obstacles[1].id 'a' is a duplicate"),
     (message([obstacle("")]), "obstacles[0].id must be a non-empty string"),
     (message([obstacle(str(i)) for i in range(65)]), "too many obstacles (65 > 64)"),
-    (message([obstacle()], stamp=time.time() + 30.0), "in the future"),
+    (lambda: message([obstacle()], stamp=time.time() + 30.0), "in the future"),   # stamped when sent
     ({"stamp": float("inf"), "obstacles": []}, "stamp must be a finite number"),
     ({"obstacles": []}, "missing field stamp"),
     ({"stamp": 1.0}, "missing field obstacles"),
@@ -128,7 +128,7 @@ def test_invalid_messages_rejected(rig):
     good = message([obstacle("keep")], stamp=time.time() + 0.5)  # fresh for the whole test
     rig.send(good)
     for i, (payload, reason) in enumerate(INVALID):
-        rig.send(payload)
+        rig.send(payload() if callable(payload) else payload)
         assert rig.inp.rejected == i + 1, (reason, rig.reasons)
         assert reason in rig.reasons[-1], (reason, rig.reasons[-1])
         assert rig.inp.last_reject == rig.reasons[-1]

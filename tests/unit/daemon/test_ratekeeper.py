@@ -86,3 +86,36 @@ def test_overrun_streak_and_stall():
     assert m.after_tick(True).startswith("overrun_streak: 3")
     assert m.stalled(1_000_000_000, 800_000_000) is None
     assert m.stalled(1_000_000_000, 600_000_000).startswith("stall: no control tick finished for 400 ms")
+
+
+def test_sched_fifo_refused_is_a_warning_not_an_error(monkeypatch, caplog):
+    import os
+
+    from vflpcd.daemon.ratekeeper import set_realtime
+
+    def refuse(*args):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    with caplog.at_level("WARNING", logger="vflpcd.daemon.ratekeeper"):
+        assert set_realtime(50) is False
+    assert "event=sched_fifo_denied priority=50" in caplog.text
+
+
+def test_manual_gc_collects_only_with_slack():
+    import gc
+
+    from vflpcd.daemon.ratekeeper import ManualGC
+
+    m = ManualGC(period_ns=10_000_000, mid_every=2, full_every=4)
+    m.start()
+    try:
+        assert not gc.isenabled()
+        m.between_ticks(1_000_000)            # 1 ms of 10 left: no collection
+        assert m.collections == [0, 0, 0]
+        for _ in range(3):
+            m.between_ticks(8_000_000)
+        assert m.collections == [1, 1, 1]     # ticks 2, 3, 4: young, middle, full
+    finally:
+        m.stop()
+    assert gc.isenabled()
