@@ -33,7 +33,8 @@ FAULTS = ("freeze", "nan", "link")
 
 class InProcPlatform:
     """``plant``: a ``sim.plants`` plant at its start state (its ``state_names``/``control_names``);
-    ``safe_accel``: the vehicle's braking command (ground) — a_min from its limits."""
+    ``brake``: the vehicle's braking acceleration (its a_min, m/s^2); ``hold_s``, ``land_speed``,
+    ``ground_z``: the quadrotor's hold time (s), descent speed (m/s) and ground height (m)."""
 
     def __init__(self, plant, *, physics_rate_hz: float = 200.0, brake: float = -6.0,
                  hold_s: float = 2.0, land_speed: float = 0.5, ground_z: float = 0.0) -> None:
@@ -57,6 +58,9 @@ class InProcPlatform:
         self.landed = False
         self.commands = 0
         self.steps = 0
+        self._sim_time = 0.0                 # seconds simulated since enable()
+        self._t_failsafe = 0.0               # simulated time of the failsafe
+        self._hold_point = None              # where the quadrotor holds
 
     # ------------------------------------------------------------------ Platform
     async def connect(self) -> None:
@@ -108,10 +112,6 @@ class InProcPlatform:
         return self.landed if self.aerial else float(np.linalg.norm(self.plant.velocity_world())) < 0.05
 
     # ------------------------------------------------------------------ physics
-    _sim_time = 0.0
-    _t_failsafe = 0.0
-    _hold_point = None
-
     def _physics(self) -> None:
         period_ns = int(round(self.dt * 1e9))
         next_ns = time.monotonic_ns()
@@ -173,6 +173,5 @@ def inproc_from_scenario(scenario, options: dict, file=None) -> InProcPlatform:
         from sim.plants.dynamic_bicycle import BicycleConfig
 
         brake = BicycleConfig.load(scenario.params).limits.a_min
-    ground_z = 0.0
     return InProcPlatform(plant, physics_rate_hz=rate, brake=brake, hold_s=t.number("hold_s", 2.0, min=0.0),
-                          land_speed=t.number("land_speed", 0.5, positive=True), ground_z=ground_z)
+                          land_speed=t.number("land_speed", 0.5, positive=True))

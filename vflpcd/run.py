@@ -10,13 +10,11 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from vflpcd.daemon.config import LoopConfig
 from vflpcd.daemon.control import ControlLoop, Sinks
 from vflpcd.daemon.progress import Progress
 from vflpcd.daemon.records import MissionHeader
@@ -87,10 +85,11 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
     from vflpcd.daemon.recorder import FlightRecorder, log_path
     from vflpcd.daemon.workers import Workers
 
-    loop_cfg = mission.loop if rate_hz is None else LoopConfig(rate_hz, mission.loop.sched_fifo,
-                                                              mission.loop.priority, mission.loop.manual_gc)
+    if rate_hz is not None:
+        mission = replace(mission, loop=replace(mission.loop, rate_hz=rate_hz))
+    loop_cfg = mission.loop
     platform = build_platform(mission)
-    controller = build_controller(mission) if rate_hz is None else _with_rate(mission, rate_hz)
+    controller = build_controller(mission)
     if drill is not None:
         controller = DrillController(controller, drill, platform, loop_cfg.period_s)
     header = mission_header(mission, platform, controller)
@@ -131,12 +130,6 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
     return RunResult(outcome, recorder.path, mission)
 
 
-def _with_rate(mission: Mission, rate_hz: float):
-    from dataclasses import replace
-
-    return build_controller(replace(mission, loop=replace(mission.loop, rate_hz=rate_hz)))
-
-
 def _open_telemetry(mission: Mission, platform, header: MissionHeader, closers: list):
     from vflpcd.daemon.telemetry import TelemetryPublisher, open_session
 
@@ -157,8 +150,3 @@ def _open_telemetry(mission: Mission, platform, header: MissionHeader, closers: 
                                      mission.telemetry.perception_max_age_s)
         closers.insert(len(closers) - 1, perception.close)
     return telemetry, perception
-
-
-def print_outcome(result: RunResult, out=sys.stdout) -> None:
-    o = result.outcome
-    print(f"outcome                      {o.reason} (exit code {o.code})", file=out)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -105,6 +106,9 @@ class ControlLoop:
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> None:
+        # A thread that wants the GIL waits until the holder's switch interval ends (5 ms by
+        # default): bound that wait for the control thread to a tenth of the period.
+        sys.setswitchinterval(min(sys.getswitchinterval(), self.cfg.period_s / 10))
         self.t0_ns = self.rate.start()
         self.last_tick_ns = self.t0_ns
         self._thread = threading.Thread(target=self._run, name="control", daemon=True)

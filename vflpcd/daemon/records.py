@@ -17,7 +17,8 @@ from typing import Any
 
 
 def json_bytes(obj: Any) -> bytes:
-    """Compact UTF-8 JSON; NaN/inf become null, numpy scalars/arrays plain numbers/lists."""
+    """Compact UTF-8 JSON; NaN/inf become null, numpy scalars/arrays plain numbers/lists; any other
+    value JSON cannot hold raises TypeError (a record carrying one is a bug, not data)."""
     try:
         text = json.dumps(obj, separators=(",", ":"), allow_nan=False, default=_default)
     except ValueError:
@@ -28,7 +29,7 @@ def json_bytes(obj: Any) -> bytes:
 def _default(value: Any) -> Any:
     if hasattr(value, "tolist"):  # numpy scalars and arrays
         return _finite(value.tolist())
-    return str(value)
+    raise TypeError(f"{type(value).__name__} is not JSON serializable")
 
 
 def _finite(value: Any) -> Any:
