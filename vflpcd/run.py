@@ -81,7 +81,9 @@ def mission_header(mission: Mission, platform, controller) -> MissionHeader:
 def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float | None = None,
                 log_dir: Path | None = None, stop_after_s: float | None = None) -> RunResult:
     """Run the mission to its end (complete, failsafe, a signal, or ``stop_after_s`` seconds of
-    control). ``rate_hz`` and ``log_dir`` override the mission's."""
+    control). ``rate_hz`` and ``log_dir`` override the mission's. Process workers are started by
+    ``spawn``, which imports the main module again: a script that calls this needs the
+    ``if __name__ == "__main__":`` guard (the ``vflpcd`` command has it)."""
     from vflpcd.daemon.recorder import FlightRecorder, log_path
     from vflpcd.daemon.workers import Workers
 
