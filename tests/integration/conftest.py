@@ -2,18 +2,12 @@
 
 from __future__ import annotations
 
-import socket
 
 import pytest
 from pathlib import Path
 
+from loopback import free_port
 from sim.scenarios import line_scenario_toml
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def write_mission(folder: Path, *, route: str | None = None, length: float = 200.0, rate_hz: float = 50.0,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import io
-import socket
 import threading
 import time
 
@@ -13,14 +12,9 @@ from vflpcd.daemon.records import Event, TickRecord
 from vflpcd.daemon.telemetry import TelemetryConfig, TelemetryPublisher, open_session
 from vflpcd.errors import ConfigError
 from vflpcd.watch import watch
+from loopback import free_port
 
 VID = "rover-3"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_watch_renders_live_telemetry():

@@ -58,9 +58,6 @@ class Counters:
     overruns: int = 0
     commands: int = 0
     send_errors: int = 0
-    replans: int = 0
-    replan_failures: int = 0
-    refits: int = 0
     worker_errors: int = 0
     lateness: TimingStats = field(default_factory=TimingStats)
     compute: TimingStats = field(default_factory=TimingStats)
@@ -101,6 +98,7 @@ class ControlLoop:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._jobs = hasattr(controller, "take_replan") and workers is not None
+        self._link_fault = getattr(platform, "fault", lambda: None)
         self._next_refresh = workers_cfg.replan_period if workers_cfg.replan_period > 0 else None
         self._next_refit = workers_cfg.refit_period
 
@@ -150,8 +148,7 @@ class ControlLoop:
         c.lateness.add(tick.lateness_ns * 1e-9)
         self._install_finished(t)
         stamped = self.platform.latest_state()
-        fault = getattr(self.platform, "fault", None)
-        reason = self.monitor.check_state(stamped, tick.start_ns, fault() if fault else None)
+        reason = self.monitor.check_state(stamped, tick.start_ns, self._link_fault())
         state = np.asarray(stamped.state, dtype=float) if stamped is not None else None
         command, compute, obstacles = (), 0.0, ()
         if self.mode == RUNNING and reason is None:
@@ -262,16 +259,13 @@ class ControlLoop:
             if f.kind == "replan":
                 if f.error is None:
                     ctl.install_plan(f.job, f.result)
-                    c.replans += 1
                     continue
-                c.replan_failures += 1
                 ctl.replan_failed(f.job, str(f.error))
                 if isinstance(f.error, GuidanceError):
                     self.event("replan_failed", reason=str(f.error)[:200])
                     continue
             elif f.error is None:
                 ctl.install_model(f.job, f.result)
-                c.refits += 1
                 continue
             c.worker_errors += 1
             self.event("worker_error", job=f.kind, reason=f"{type(f.error).__name__}: {f.error}"[:200])

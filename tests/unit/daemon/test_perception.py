@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import socket
 import time
 
 import numpy as np
@@ -13,24 +12,10 @@ import zenoh
 from vflpcd.core.shapes import Circle, Sphere
 from vflpcd.daemon.perception import PerceptionInput, parse_message
 from vflpcd.daemon.telemetry import TelemetryConfig, open_session
+from loopback import free_port, wait_for
 
 VID = "car-7"
 KEY = f"vflpc/{VID}/perception/obstacles"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for(pred, timeout: float = 3.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.005)
-    return pred()
 
 
 def obstacle(oid="ped-1", center=(10.0, 2.0), velocity=(1.0, -0.5), radius=0.6, kind="circle") -> dict:

@@ -18,25 +18,11 @@ from vflpcd.daemon.telemetry import (
 )
 from vflpcd.errors import ConfigError
 from vflpcd.tomlread import Table
+from loopback import free_port, wait_for
 
 VID = "car-7"
 STATE_NAMES = ("X", "Y", "psi", "v")
 CONTROL_NAMES = ("delta", "a")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for(pred, timeout: float = 3.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.005)
-    return pred()
 
 
 def tick(k: int, t: float | None = None) -> TickRecord:

@@ -1,0 +1,24 @@
+"""Helpers shared by the tests that talk over loopback (on the test path via pyproject's
+``pythonpath``)."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(pred, timeout: float = 3.0) -> bool:
+    """Poll ``pred`` every 5 ms until it is true or ``timeout`` s have passed; its last value."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.005)
+    return pred()
