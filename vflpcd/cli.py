@@ -12,6 +12,10 @@ from vflpcd.errors import ConfigError
 log = logging.getLogger("vflpcd")
 
 
+SITL_MOCKS = {"quad": "a PX4-like quadrotor autopilot over MAVLink/UDP",
+              "can-ecu": "a drive-by-wire vehicle ECU on a CAN bus (config/can/vehicle.dbc)"}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="vflpcd", description="Vector Field-guided Learning Predictive Control")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -105,6 +109,12 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
     b.set_defaults(func=cmd_bench_loop)
 
+    p = sub.add_parser("sitl", help="software-in-the-loop mocks of the real platforms")
+    sitl = p.add_subparsers(dest="target", required=True)
+    for name, help_text in SITL_MOCKS.items():
+        t = sitl.add_parser(name, add_help=False, help=f"{help_text} (vflpcd sitl {name} --help)")
+        t.add_argument("args", nargs=argparse.REMAINDER)
+
     p = sub.add_parser("scenarios", help="list the scenarios in config/scenarios")
     p.set_defaults(func=cmd_scenarios)
 
@@ -113,6 +123,8 @@ def main(argv: list[str] | None = None) -> int:
         return cmd_collect(argparse.Namespace(args=argv[1:]))
     if argv[:2] == ["train", "koopman"]:
         return cmd_train_koopman(argparse.Namespace(args=argv[2:]))
+    if argv[:1] == ["sitl"] and argv[1:2] and argv[1] in SITL_MOCKS:
+        return cmd_sitl(argv[1], argv[2:])
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s %(message)s")
@@ -144,6 +156,24 @@ def cmd_sim(args) -> int:
     for f in files:
         print(f"wrote {f}")
     return 0
+
+
+def cmd_sitl(name: str, argv: list[str]) -> int:
+    """``vflpcd sitl NAME ARGS``: the mock's own parser gets the rest of the line."""
+    if name == "quad":
+        from sim.sitl import quad as mock
+    else:
+        from sim.sitl import can_ecu as mock
+    parser = argparse.ArgumentParser(prog=f"vflpcd sitl {name}", description=SITL_MOCKS[name])
+    mock.add_arguments(parser)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=getattr(args, "log_level", "INFO").upper(), stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s %(message)s")
+    try:
+        return mock.run(args)
+    except ConfigError as exc:
+        print(f"vflpcd sitl {name}: error: {exc}", file=sys.stderr)
+        return 2
 
 
 def cmd_collect(args) -> int:

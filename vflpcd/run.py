@@ -33,14 +33,23 @@ class RunResult:
     mission: Mission
 
 
-def build_platform(mission: Mission):
-    """The mission's platform driver (ConfigError for bad options or a driver not in this build)."""
-    kind = mission.platform.kind
+def build_platform(mission: Mission, flight_log: Path | None = None):
+    """The mission's platform driver (ConfigError for bad options). ``flight_log``: the run's MCAP
+    path; drivers that record their link (the CAN bus log) write beside it."""
+    kind, options = mission.platform.kind, mission.platform.options
     if kind == "inproc":
         from drivers.inproc import inproc_from_scenario
 
-        return inproc_from_scenario(mission.scenario, mission.platform.options, mission.file)
-    raise ConfigError(mission.file, "platform.kind", f"the {kind} driver is not available in this build (use inproc)")
+        return inproc_from_scenario(mission.scenario, options, mission.file)
+    if kind == "can":
+        from drivers.can_vehicle import can_vehicle_from_scenario
+
+        return can_vehicle_from_scenario(mission.scenario, options, mission.file, flight_log)
+    if kind == "mavlink":
+        from drivers.mavlink_quad import mavlink_quad_from_scenario
+
+        return mavlink_quad_from_scenario(mission.scenario, options, mission.file)
+    raise ConfigError(mission.file, "platform.kind", f"no driver for platform kind {kind!r}")
 
 
 def position_index(state_names) -> list[int]:
@@ -90,7 +99,8 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
     if rate_hz is not None:
         mission = replace(mission, loop=replace(mission.loop, rate_hz=rate_hz))
     loop_cfg = mission.loop
-    platform = build_platform(mission)
+    flight_log = log_path(log_dir or mission.log_dir, mission.vehicle_id)
+    platform = build_platform(mission, flight_log)
     controller = build_controller(mission)
     if drill is not None:
         controller = DrillController(controller, drill, platform, loop_cfg.period_s)
@@ -100,7 +110,7 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
     if mission.telemetry.enabled:         # first: a port in use must not leave an empty log behind
         telemetry, perception = _open_telemetry(mission, platform, header, closers)
     try:
-        recorder = FlightRecorder(log_path(log_dir or mission.log_dir, mission.vehicle_id), header)
+        recorder = FlightRecorder(flight_log, header)
     except ConfigError:
         for close in closers:
             close()

@@ -270,18 +270,21 @@ def test_malformed_field_found_when_building(tmp_path, changes, field):
     assert_names(info.value, f, field)
 
 
-def test_platform_not_in_this_build(tmp_path):
+def test_platform_options_are_checked_by_their_driver(tmp_path):
     doc = tomllib.loads(QUAD.read_text())
     f = write_mission(tmp_path, doc, **{"platform.kind": "mavlink"})
     mission = load_mission(f)                    # mavlink fits an aerial route
-    with pytest.raises(ConfigError) as info:
+    with pytest.raises(ConfigError) as info:     # physics_rate_hz belongs to inproc
         build_platform(mission)
-    assert_names(info.value, f, "platform.kind")
-    assert "not available in this build" in str(info.value)
-    f = write_mission(tmp_path, **{"platform.kind": "can"})
+    assert_names(info.value, f, "platform.physics_rate_hz")
+    f = write_mission(tmp_path, doc, **{"platform": {"kind": "mavlink", "url": "udp:14540"}})
     with pytest.raises(ConfigError) as info:
         build_platform(load_mission(f))
-    assert_names(info.value, f, "platform.kind")
+    assert_names(info.value, f, "platform.url")
+    f = write_mission(tmp_path, **{"platform": {"kind": "can", "interface": "kvaser"}})
+    with pytest.raises(ConfigError) as info:
+        build_platform(load_mission(f))
+    assert_names(info.value, f, "platform.interface")
     f = write_mission(tmp_path, doc, **{"platform.kind": "can"})   # can drives ground vehicles only
     with pytest.raises(ConfigError) as info:
         load_mission(f)
@@ -408,11 +411,11 @@ def test_cli_bad_input_exit_2(tmp_path, capsys, command, changes, field):
     assert not (tmp_path / "logs").exists() or not any((tmp_path / "logs").iterdir())
 
 
-def test_cli_check_platform_not_in_this_build(tmp_path, capsys):
+def test_cli_check_names_a_bad_platform_option(tmp_path, capsys):
     f = write_mission(tmp_path, tomllib.loads(QUAD.read_text()), **{"platform.kind": "mavlink"})
     assert main(["check", str(f)]) == 2
     line = one_error_line(capsys.readouterr().err)
-    assert line.startswith(f"vflpcd: error: {f}: platform.kind: the mavlink driver is not available in this build")
+    assert line.startswith(f"vflpcd: error: {f}: platform.physics_rate_hz: unknown field (allowed: ")
 
 
 def test_cli_run_bad_drill(capsys):

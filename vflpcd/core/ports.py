@@ -42,7 +42,13 @@ class StampedState:
 
 
 class Platform(Protocol):
-    """A vehicle link: connect, enable (arm), read the latest state, send commands, fail safe."""
+    """A vehicle link: connect, enable (arm), read the latest state, send commands, fail safe.
+
+    Optional members the daemon uses when a driver has them: ``async prepare()`` (after the first
+    state, bring the vehicle to the route's start: the quadrotor arms and takes off), ``fault()``
+    (a link fault as a string, or None), ``at_rest`` (stands still / landed), ``link_stats()``
+    (the link's counters for the log), ``inject(kind)`` (drills).
+    """
 
     state_names: tuple[str, ...]
     control_names: tuple[str, ...]

@@ -1,7 +1,8 @@
 """The daemon: asyncio orchestration around the control thread.
 
 ``Daemon.run()``:
-1. connects the platform and waits for its first state (``failsafe.connect_timeout``);
+1. connects the platform and waits for its first state (``failsafe.connect_timeout``); a platform
+   with ``prepare()`` is then brought to the route's start (the quadrotor arms and takes off);
 2. plans the first reference and starts the workers (off the event loop);
 3. enables the platform (arm / engage), starts the control thread, sends READY=1;
 4. monitors health every ``monitor_s``: a stalled control thread trips the failsafe; WATCHDOG=1 is
@@ -89,6 +90,20 @@ class Daemon:
         if self._signal:
             await self._shutdown(loop, started=False)
             return Outcome(EXIT_OK, self._signal, loop)
+        prepare = getattr(self.platform, "prepare", None)
+        if prepare is not None:             # e.g. the quadrotor arms and takes off to the route's start
+            self.notifier.status("preparing the platform")
+            try:
+                await prepare()
+                first = await self._first_state(policy.connect_timeout, after_ns=time.monotonic_ns())
+            except Exception as exc:
+                reason = f"platform preparation failed: {type(exc).__name__}: {exc}"
+                log.error("event=prepare_failed reason=%s", reason)
+                await self._shutdown(loop, started=False, reason=reason, prepared=True)
+                return Outcome(EXIT_ERROR, reason, loop)
+            if self._signal:
+                await self._shutdown(loop, started=False, reason=self._signal, prepared=True)
+                return Outcome(EXIT_OK, self._signal, loop)
         self.notifier.status("planning the first reference")
         try:
             if self.first_plan is not None:
@@ -96,7 +111,7 @@ class Daemon:
         except (GuidanceError, ValueError) as exc:     # e.g. the vehicle starts inside an obstacle
             reason = f"no first plan from the vehicle's state: {exc}"
             log.error("event=first_plan_failed reason=%s", reason)
-            await self._shutdown(loop, started=False)
+            await self._shutdown(loop, started=False, reason=reason, prepared=prepare is not None)
             return Outcome(EXIT_BAD_INPUT, reason, loop)
         try:
             if self.workers is not None:
@@ -105,7 +120,7 @@ class Daemon:
         except Exception as exc:
             reason = f"start-up failed: {type(exc).__name__}: {exc}"
             log.exception("event=startup_failed")
-            await self._shutdown(loop, started=False)
+            await self._shutdown(loop, started=False, reason=reason, prepared=prepare is not None)
             return Outcome(EXIT_ERROR, reason, loop)
         loop.start()
         if self.stop_after_s is not None:
@@ -118,11 +133,12 @@ class Daemon:
         await self._shutdown(loop, started=True, reason=outcome.reason)
         return outcome
 
-    async def _first_state(self, timeout_s: float):
+    async def _first_state(self, timeout_s: float, after_ns: int = 0):
+        """The platform's first state (stamped at or after ``after_ns``)."""
         deadline = time.monotonic() + timeout_s
         while True:
             s = self.platform.latest_state()
-            if s is not None:
+            if s is not None and s.stamp_ns >= after_ns:
                 return s
             if self._signal:
                 return None
@@ -179,9 +195,12 @@ class Daemon:
         if self.telemetry is not None:
             self.telemetry.offer_health(health)
 
-    async def _shutdown(self, loop: ControlLoop, *, started: bool, reason: str = "") -> None:
-        """Safe stop in at most about 2 s: stop commanding, the platform's safe action, close all."""
+    async def _shutdown(self, loop: ControlLoop, *, started: bool, reason: str = "", prepared: bool = False) -> None:
+        """Safe stop in at most about 2 s: stop commanding, the platform's safe action, close all.
+        ``prepared``: the platform was prepared (e.g. is flying) though the loop never started."""
         self.notifier.stopping()
+        if prepared and not started:
+            await self._bounded(self.platform.failsafe(f"shutdown: {reason}"), 0.5)
         if started:
             if loop.mode == RUNNING:
                 loop.mode = STOPPING

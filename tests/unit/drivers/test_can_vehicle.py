@@ -1,0 +1,208 @@
+"""The CAN vehicle driver against a scripted node on python-can's in-process virtual bus."""
+
+import asyncio
+import time
+
+import can
+import cantools
+import numpy as np
+import pytest
+
+from drivers.can_bus import BusConfig
+from drivers.can_codec import FRAME_ERRORS, CounterSource, VehicleCan, checksum
+from drivers.can_vehicle import CanVehicle, can_vehicle_from_scenario
+from sim.plants.dynamic_bicycle import BicycleConfig
+from sim.scenarios import load_scenario
+from vflpcd.errors import ConfigError
+
+LIMITS = BicycleConfig.load("nominal").limits
+
+
+class Node:
+    """The vehicle side, scripted: sends INS and status frames, records the commands it receives."""
+
+    def __init__(self, channel: str) -> None:
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.codec = VehicleCan()
+        self.counter = CounterSource()
+
+    def publish(self, x=(1.0, 2.0, 0.3, 5.0, 0.1, 0.05), mode=2, speed=None, faults=None, steer=0.02) -> None:
+        c = self.codec
+        self.bus.send(c.encode("InsPosition", {"PosX": x[0], "PosY": x[1]}))
+        self.bus.send(c.encode("VehicleStatus", {"Speed": x[3] if speed is None else speed, "YawRate": x[5],
+                                                 "SteerAngle": steer, "Mode": mode,
+                                                 **(faults or dict.fromkeys(("FaultCmdTimeout", "FaultBadCounter",
+                                                                             "FaultBadChecksum", "FaultOutOfRange"), 0))}))
+        self.bus.send(c.encode("InsHeadingVelocity", {"Heading": x[2], "VelX": x[3], "VelY": x[4],
+                                                      "AliveCounter": self.counter.take()}))
+
+    def commands(self, timeout=0.3) -> list[dict]:
+        out, deadline = [], time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            msg = self.bus.recv(0.01)
+            if msg is not None and msg.arbitration_id == 0x100:
+                out.append(self.codec.decode(msg).signals)
+        return out
+
+    def close(self) -> None:
+        self.bus.shutdown()
+
+
+@pytest.fixture
+def channel(request):
+    return f"vflpcd-test-{request.node.name}"
+
+
+def driver(channel, **kw) -> CanVehicle:
+    return CanVehicle(BusConfig("virtual", channel), LIMITS, **kw)
+
+
+async def _settle(s=0.05):
+    await asyncio.sleep(s)
+
+
+def test_state_is_assembled_in_plant_order_from_ins_and_status(channel):
+    async def main():
+        node, d = Node(channel), driver(channel)
+        await d.connect()
+        assert d.latest_state() is None and d.fault() is not None
+        node.publish()
+        await _settle()
+        s = d.latest_state()
+        np.testing.assert_allclose(s.state, [1.0, 2.0, 0.3, 5.0, 0.1, 0.05], atol=1e-3)
+        assert d.state_names == ("X", "Y", "psi", "vx", "vy", "omega")
+        assert d.fault() is None and d.ecu_mode == "automatic"
+        await d.close()
+        node.close()
+    asyncio.run(main())
+
+
+def test_commands_are_encoded_clipped_counted_and_repeated_only_while_fresh(channel):
+    async def main():
+        node, d = Node(channel), driver(channel, command_hold=0.1)
+        await d.connect()
+        node.publish()
+        await _settle()
+        await d.send(np.array([1.5, -0.2]))
+        await d.enable()
+        await d.send(np.array([1.5, -0.2]))
+        await d.send(np.array([99.0, 9.0]))            # clipped to a_max, delta_max
+        got = await asyncio.get_running_loop().run_in_executor(None, node.commands, 0.3)
+        await d.close()
+        node.close()
+        return got
+    got = asyncio.run(main())
+    assert got[0]["AccelCmd"] == pytest.approx(1.5) and got[0]["SteerAngleCmd"] == pytest.approx(-0.2)
+    assert got[1]["AccelCmd"] == pytest.approx(LIMITS.a_max) and got[1]["SteerAngleCmd"] == pytest.approx(LIMITS.delta_max)
+    assert all(c["Enable"] == 1 for c in got)
+    counters = [c["AliveCounter"] for c in got]
+    assert all((b - a) % 16 == 1 for a, b in zip(counters, counters[1:]))
+    # 2 sent at once, then repeats every 20 ms while the newest is younger than 0.1 s: 3 to 5 more, then silence
+    assert 4 <= len(got) <= 8, len(got)
+
+
+def test_silence_bad_frames_and_an_ecu_takeover_are_faults(channel):
+    async def main():
+        node, d = Node(channel), driver(channel, state_timeout=0.1)
+        await d.connect()
+        node.publish()
+        await _settle()
+        await d.enable()
+        assert d.fault() is None
+        await _settle(0.15)
+        assert "no INS frames" in d.fault()
+        node.publish()
+        await _settle()
+        assert d.fault() is None
+        node.publish(mode=3, faults={"FaultCmdTimeout": 1, "FaultBadCounter": 0, "FaultBadChecksum": 0,
+                                     "FaultOutOfRange": 0})
+        await _settle()
+        assert "took over" in d.fault()
+        bad = [can.Message(arbitration_id=0x300, data=bytes(5), is_extended_id=False),           # dlc
+               can.Message(arbitration_id=0x7FF, data=bytes(8), is_extended_id=False),           # unknown id
+               can.Message(arbitration_id=0x200, data=bytes(8), is_extended_id=False)]           # checksum
+        data = bytearray(node.codec.encode("InsHeadingVelocity", {"Heading": 0.0, "VelX": 0.0, "VelY": 0.0,
+                                                                  "AliveCounter": 0}).data)
+        data[0:2] = (32000).to_bytes(2, "little", signed=True)                                  # heading 3.2 rad
+        bad.append(can.Message(arbitration_id=0x301, data=bytes(data), is_extended_id=False))   # range
+        status = bytearray(node.codec.encode("VehicleStatus", {"Speed": 1, "YawRate": 0, "SteerAngle": 0, "Mode": 2,
+                                                               "FaultCmdTimeout": 0, "FaultBadCounter": 0,
+                                                               "FaultBadChecksum": 0, "FaultOutOfRange": 0}).data)
+        status[7] = (checksum(0x200, status) + 1) & 0xFF
+        bad.append(can.Message(arbitration_id=0x200, data=bytes(status), is_extended_id=False))  # checksum
+        for m in bad:
+            node.bus.send(m)
+        node.counter.take()                                                                      # skip one: counter
+        node.publish()
+        await _settle()
+        stats = d.link_stats()
+        await d.close()
+        node.close()
+        return stats
+    stats = asyncio.run(main())
+    assert stats["bad_frames"] == {"unknown_id": 1, "dlc": 1, "checksum": 2, "range": 1, "counter": 1}
+
+
+def test_failsafe_brakes_with_the_steering_held_then_hands_back_at_standstill(channel):
+    async def main():
+        node, d = Node(channel), driver(channel)
+        await d.connect()
+        node.publish(steer=0.07)
+        await _settle()
+        await d.enable()
+        await d.failsafe("link_lost")
+        await d.send(np.array([2.0, 0.0]))              # ignored after the failsafe
+        moving = await asyncio.get_running_loop().run_in_executor(None, node.commands, 0.1)
+        node.publish(x=(1.0, 2.0, 0.3, 0.0, 0.0, 0.0), speed=0.0, mode=1)
+        await _settle()
+        node.commands(0.05)
+        stopped = await asyncio.get_running_loop().run_in_executor(None, node.commands, 0.1)
+        assert d.at_rest
+        await d.close()
+        node.close()
+        return moving, stopped
+    moving, stopped = asyncio.run(main())
+    assert moving and all(c["AccelCmd"] == pytest.approx(LIMITS.a_min) and c["Enable"] == 1
+                          and c["SteerAngleCmd"] == pytest.approx(0.07) for c in moving)
+    assert stopped and all(c["Enable"] == 0 for c in stopped)
+
+
+def test_bus_log_decodes_with_cantools(channel, tmp_path):
+    async def main():
+        node, d = Node(channel), driver(channel, bus_log=tmp_path / "run.asc")
+        await d.connect()
+        for _ in range(5):
+            node.publish()
+            await _settle(0.01)
+        await d.enable()
+        await d.send(np.array([0.5, 0.01]))
+        await _settle()
+        await d.close()
+        node.close()
+    asyncio.run(main())
+    db = cantools.database.load_file("config/can/vehicle.dbc")
+    names = []
+    with can.ASCReader(tmp_path / "run.asc") as reader:
+        for msg in reader:
+            names.append(db.decode_message(msg.arbitration_id, msg.data) and db.get_message_by_frame_id(msg.arbitration_id).name)
+    assert names.count("InsPosition") == 5 and names.count("VehicleStatus") == 5
+    assert names.count("VehicleCmd") >= 1
+
+
+def test_mission_options_are_checked():
+    sc = load_scenario("carsim_avoidance")
+    v = can_vehicle_from_scenario(sc, {"interface": "remote", "channel": "ws://127.0.0.1:5/"}, "m.toml")
+    assert v.bus_cfg.describe() == "remote:ws://127.0.0.1:5/"
+    for options, field in [({"interface": "pcan"}, "platform.interface"),
+                           ({"interface": "remote", "channel": "vcan0"}, "platform.channel"),
+                           ({"state_timeout": 0.0}, "platform.state_timeout"),
+                           ({"bus_log": "csv"}, "platform.bus_log"),
+                           ({"dbc": "/nonexistent.dbc"}, "platform.dbc"),
+                           ({"bitrate": 500000}, "platform")]:
+        with pytest.raises(ConfigError) as err:
+            can_vehicle_from_scenario(sc, options, "m.toml")
+        assert field in str(err.value)
+
+
+def test_frame_error_kinds_are_the_counted_ones():
+    assert set(FRAME_ERRORS) == {"unknown_id", "dlc", "checksum", "range", "counter"}
