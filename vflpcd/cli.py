@@ -80,6 +80,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--drill", default=None, metavar="KIND@SECONDS",
                    help="inject a fault at a mission time to exercise the failsafe (stall, error, overrun, nan, "
                         "freeze, nan_state, link)")
+    p.add_argument("--with-sitl", action="store_true",
+                   help="start the platform's mock first (can: the CAN hub and vflpcd sitl can-ecu; "
+                        "mavlink: vflpcd sitl quad) and stop it at the end")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("check", help="validate a mission file without running it")
@@ -257,7 +260,17 @@ def cmd_run(args) -> int:
 
     drill = Drill.parse(args.drill) if args.drill else None
     mission = load_mission(args.mission)
-    result = run_mission(mission, drill=drill, log_dir=args.log_dir)
+    if args.with_sitl:
+        from vflpcd.sitl_launch import SitlProcesses
+
+        try:
+            with SitlProcesses(mission, args.log_dir or mission.log_dir):
+                result = run_mission(mission, drill=drill, log_dir=args.log_dir)
+        except OSError as exc:
+            print(f"vflpcd: error: {exc}", file=sys.stderr)
+            return 1
+    else:
+        result = run_mission(mission, drill=drill, log_dir=args.log_dir)
     if result.log_path is not None and result.log_path.exists():
         log = read_flight_log(result.log_path)
         print("\n".join(summary_lines(log, mission.scenario, result.outcome)))

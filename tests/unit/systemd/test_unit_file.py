@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -77,3 +78,27 @@ def test_systemd_analyze_security(unit_copy):
     m = re.search(r"Overall exposure level for \S+: (\d+(?:\.\d+)?)", r.stdout)
     assert m, r.stdout + r.stderr
     assert float(m.group(1)) <= EXPOSURE_MAX, r.stdout
+
+
+BENCH_UNITS = ("vcan@.service", "vflpcd-ecu@.service")
+
+
+@needs_analyze
+@pytest.mark.parametrize("name", BENCH_UNITS)
+def test_bench_units_verify(name, tmp_path):
+    """The hardware-in-the-loop units: vcan@ (vcan0 up) and vflpcd-ecu@ (the ECU mock on it)."""
+    entry = Path(sys.executable).parent / "vflpcd"
+    for unit in BENCH_UNITS:             # side by side: the ECU unit requires vcan@vcan0
+        (tmp_path / unit).write_text((UNIT.parent / unit).read_text().replace(f"{EXEC} ", f"{entry} "))
+    r = subprocess.run(["systemd-analyze", "verify", "--man=no", str(tmp_path / name)],
+                       capture_output=True, text=True, timeout=60, cwd=tmp_path,
+                       env={**os.environ, "SYSTEMD_UNIT_PATH": f"{tmp_path}:"})
+    ours = [line for line in (r.stderr + r.stdout).splitlines() if name.split("@")[0] in line]
+    assert r.returncode == 0, r.stderr
+    assert ours == [], "\n".join(ours)
+
+
+def test_ecu_unit_runs_the_mock_on_vcan0():
+    text = (UNIT.parent / "vflpcd-ecu@.service").read_text()
+    assert f"ExecStart={EXEC} sitl can-ecu /etc/vflpcd/missions/%i.toml --interface socketcan --channel vcan0" in text
+    assert "Requires=vcan@vcan0.service" in text and "After=vcan@vcan0.service" in text
