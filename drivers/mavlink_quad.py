@@ -85,6 +85,7 @@ class MavlinkQuad:
         from mavsdk.asyncio.plugins.offboard import OffboardAsync
         from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
+        route_mavsdk_log()
         self._mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
         await self._mavsdk.add_any_connection(self.url)
         log.info("event=listening url=%s", self.url)
@@ -117,7 +118,8 @@ class MavlinkQuad:
         await self._action.takeoff()
         log.info("event=takeoff altitude=%.2f", self.takeoff_altitude)
         await self._wait_for(lambda: self._latest is not None and abs(self._latest.state[2] - self._target_z()) < 0.15
-                             and self.flight_mode != "TAKEOFF", self.takeoff_timeout, "the take-off altitude")
+                             and float(np.linalg.norm(self._latest.state[3:6])) < 0.2 and self.flight_mode != "TAKEOFF",
+                             self.takeoff_timeout, "a hover at the take-off altitude")
 
     async def enable(self) -> None:
         from mavsdk.asyncio.plugins.offboard import AccelerationNed
@@ -272,6 +274,20 @@ class MavlinkQuad:
             if time.monotonic() > deadline:
                 raise TimeoutError(f"the autopilot did not reach {what} within {timeout_s:g} s")
             await asyncio.sleep(0.02)
+
+
+def route_mavsdk_log() -> None:
+    """MAVSDK's native log into this process's logging (logger ``mavsdk``) instead of stdout."""
+    from mavsdk.logging import LogLevel, log_subscribe
+
+    logger = logging.getLogger("mavsdk")
+    levels = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO, LogLevel.WARN: logging.WARNING,
+              LogLevel.ERROR: logging.ERROR}
+
+    def forward(level, message, file, line) -> bool:
+        logger.log(levels.get(level, logging.INFO), "%s", message)
+        return True
+    log_subscribe(forward)
 
 
 def mavlink_quad_from_scenario(scenario, options: dict, file=None) -> MavlinkQuad:
