@@ -1,0 +1,198 @@
+"""The vehicle ECU mock on python-can's in-process virtual bus, driven by a scripted test node."""
+
+import time
+
+import can
+import numpy as np
+import pytest
+
+from drivers.can_codec import CounterSource, VehicleCan, checksum
+from loopback import wait_for
+from sim.plants import make_plant
+from sim.plants.dynamic_bicycle import BicycleConfig
+from sim.scenarios import load_scenario
+from sim.sitl.can_ecu import CanEcu
+
+SC = load_scenario("carsim_avoidance")
+LIMITS = BicycleConfig.load(SC.params).limits
+CODEC = VehicleCan()
+
+
+class Node:
+    """Sends commands and collects what the ECU publishes."""
+
+    def __init__(self, channel):
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.counter = CounterSource()
+
+    def command(self, accel=0.0, steer=0.0, enable=1, counter=None):
+        self.bus.send(CODEC.encode("VehicleCmd", {"AccelCmd": accel, "SteerAngleCmd": steer, "Enable": enable,
+                                                  "AliveCounter": self.counter.take() if counter is None else counter}))
+
+    def stream(self, seconds, **kw):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.command(**kw)
+            time.sleep(0.02)
+
+    def collect(self, seconds):
+        frames, end = [], time.monotonic() + seconds
+        while time.monotonic() < end:
+            msg = self.bus.recv(0.01)
+            if msg is not None:
+                frames.append(msg)
+        return frames
+
+
+@pytest.fixture
+def rig(request):
+    channel = f"ecu-{request.node.name}"
+    ecu = CanEcu(lambda: can.Bus(interface="virtual", channel=channel), make_plant(SC, 0), LIMITS, CODEC,
+                 cmd_timeout_s=0.1)
+    tester = Node(channel)
+    ecu.start()
+    yield ecu, tester
+    ecu.stop()
+    tester.bus.shutdown()
+
+
+def test_status_and_ins_at_their_cycle_times_match_the_plant(rig):
+    ecu, t = rig
+    frames = t.collect(1.0)
+    by_id = {i: [f for f in frames if f.arbitration_id == i] for i in (0x200, 0x300, 0x301)}
+    for frame_id, period in ((0x200, 0.020), (0x300, 0.010), (0x301, 0.010)):
+        stamps = np.array([f.timestamp for f in by_id[frame_id]])
+        assert np.mean(np.diff(stamps)) == pytest.approx(period, rel=0.1), frame_id
+    last = CODEC.decode(by_id[0x301][-1]).signals
+    pos = CODEC.decode(by_id[0x300][-1]).signals
+    x = ecu.plant.state                         # held at the start state until engaged
+    assert (pos["PosX"], pos["PosY"]) == pytest.approx((x[0], x[1]), abs=1e-3)
+    assert last["VelX"] == pytest.approx(x[3], abs=0.01) and last["Heading"] == pytest.approx(x[2], abs=1e-4)
+    assert CODEC.decode(by_id[0x200][-1]).signals["Mode"] == 1
+    counters = [CODEC.decode(f).signals["AliveCounter"] for f in by_id[0x301]]
+    assert all((b - a) % 16 == 1 for a, b in zip(counters, counters[1:]))
+
+
+def test_commands_engage_then_a_timeout_brakes_to_a_latched_stop(rig):
+    ecu, t = rig
+    v0 = ecu.speed
+    t.stream(0.5, accel=2.0, steer=0.1)
+    assert ecu.mode == "automatic" and ecu.speed > v0 + 0.5
+    assert ecu.plant.applied_control[1] == pytest.approx(0.1, abs=0.01)
+    assert wait_for(lambda: ecu.mode == "braking", 0.3)             # commands stopped: 0.1 s timeout
+    assert ecu.faults["FaultCmdTimeout"] == 1
+    speeds = []
+    assert wait_for(lambda: speeds.append(ecu.speed) or ecu.mode == "stopped", 5.0)
+    assert min(speeds) >= 0.0 and ecu.standstill
+    t.stream(0.2, accel=2.0)                                         # latched: Enable = 1 alone does nothing
+    assert ecu.mode == "stopped" and ecu.standstill
+    t.command(enable=0)                                              # re-arm
+    assert wait_for(lambda: ecu.mode == "ready", 0.5) and ecu.faults["FaultCmdTimeout"] == 0
+    t.stream(0.3, accel=1.0)
+    assert ecu.mode == "automatic" and ecu.speed > 0.1
+    assert ecu.stats()["timeouts"] == 1
+
+
+def test_hand_back_brakes_to_ready(rig):
+    ecu, t = rig
+    t.stream(0.3, accel=0.0)
+    t.command(enable=0)
+    assert wait_for(lambda: ecu.mode == "braking", 0.3)
+    assert wait_for(lambda: ecu.mode == "ready", 5.0) and ecu.standstill
+    assert ecu.faults["FaultCmdTimeout"] == 0
+
+
+def _with_checksum(frame_id, data):
+    data = bytearray(data)
+    data[7] = checksum(frame_id, data)
+    return can.Message(arbitration_id=frame_id, data=bytes(data), is_extended_id=False)
+
+
+def test_fuzz_thousands_of_bad_frames_are_dropped_counted_and_ignored(rig):
+    """3000 malformed frames between the valid 50 Hz stream: the ECU follows the stream only."""
+    ecu, t = rig
+    rng = np.random.default_rng(7)
+    good = CODEC.encode("VehicleCmd", {"AccelCmd": 0.5, "SteerAngleCmd": 0.0, "Enable": 1, "AliveCounter": 0}).data
+    sent = {"dlc": 0, "checksum": 0, "range": 0, "counter": 0, "unknown_id": 0}
+    t.stream(0.2, accel=0.5)
+    for i in range(3000):
+        kind = ("dlc", "checksum", "range", "counter", "unknown_id", "random")[i % 6]
+        if kind == "dlc":
+            n = int(rng.integers(0, 8))
+            msg = can.Message(arbitration_id=0x100, data=bytes(rng.integers(0, 256, n, dtype=np.uint8)),
+                              is_extended_id=False)
+        elif kind == "checksum":
+            data = bytearray(good)
+            data[7] = (checksum(0x100, data) + 1 + int(rng.integers(0, 254))) & 0xFF
+            msg = can.Message(arbitration_id=0x100, data=bytes(data), is_extended_id=False)
+        elif kind == "range":                       # AccelCmd -20 m/s^2 (outside [-8, 4]), checksum right
+            data = bytearray(good)
+            data[0:2] = (-20000).to_bytes(2, "little", signed=True)
+            msg = _with_checksum(0x100, data)
+        elif kind == "counter":                     # a valid frame whose counter repeats the last one
+            msg = None
+            t.counter._next = (t.counter._next - 1) % 16
+            t.command(accel=-6.0)
+        elif kind == "unknown_id":
+            msg = can.Message(arbitration_id=int(rng.integers(0x400, 0x7FF)), data=bytes(8), is_extended_id=False)
+        else:                                       # random bytes on 0x100: caught by a check, whichever
+            msg = can.Message(arbitration_id=0x100, data=bytes(rng.integers(0, 256, 8, dtype=np.uint8)),
+                              is_extended_id=False)
+            sent["random"] = sent.get("random", 0) + 1
+        if kind != "random":
+            sent[kind] += 1
+        if msg is not None:
+            t.bus.send(msg)
+        if i % 30 == 0:
+            t.command(accel=0.5)                   # the valid stream goes on
+            time.sleep(0.02)
+    time.sleep(0.1)
+    bad = ecu.stats()["bad_frames"]
+    assert bad["dlc"] >= sent["dlc"] and bad["unknown_id"] == sent["unknown_id"]
+    # each repeated counter is dropped, and so is the valid frame after it (the counter re-synchronises)
+    assert bad["counter"] >= sent["counter"]
+    assert bad["checksum"] >= sent["checksum"] and bad["range"] >= sent["range"]
+    assert sum(bad.values()) >= 3000
+    assert ecu.plant.applied_control[0] == pytest.approx(0.5) or ecu.mode == "braking"
+    assert ecu.stats()["malformed"] == 0 and ecu._thread.is_alive()
+
+
+def test_a_bus_error_brakes_and_the_bus_is_reopened(request):
+    channel = f"ecu-{request.node.name}"
+    opened = []
+
+    class Failing(can.BusABC):
+        def __init__(self):
+            super().__init__(channel=channel)
+            self.inner = can.Bus(interface="virtual", channel=channel)
+
+        def _recv_internal(self, timeout):
+            if len(opened) == 1 and time.monotonic() > failing_at:
+                raise can.CanOperationError("bus off")
+            return self.inner._recv_internal(timeout)
+
+        def send(self, msg, timeout=None):
+            self.inner.send(msg, timeout)
+
+        def shutdown(self):
+            self.inner.shutdown()
+            super().shutdown()
+
+    def factory():
+        bus = Failing()
+        opened.append(bus)
+        return bus
+
+    ecu = CanEcu(factory, make_plant(SC, 0), LIMITS, CODEC, cmd_timeout_s=0.1)
+    t = Node(channel)
+    failing_at = time.monotonic() + 0.3
+    ecu.start()
+    try:
+        t.stream(0.25, accel=1.0)
+        assert ecu.mode == "automatic"
+        assert wait_for(lambda: ecu.stats()["bus_errors"] >= 1, 2.0)
+        assert wait_for(lambda: len(opened) >= 2, 2.0)              # reopened after 0.5 s
+        assert ecu.mode in ("braking", "stopped") and ecu.faults["FaultCmdTimeout"] == 1
+    finally:
+        ecu.stop()
+        t.bus.shutdown()
