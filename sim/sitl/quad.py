@@ -240,8 +240,11 @@ class QuadSitl:
         if result != mav.MAV_RESULT_ACCEPTED:
             self.counts["rejected_commands"] += 1
             log.debug("event=command_rejected command=%d result=%d", cmd, result)
+        if result == mav.MAV_RESULT_ACCEPTED:
+            self._apply(cmd, p)                    # the state changes before the ACK leaves
         self.conn.mav.command_ack_send(cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
-        self._after_ack(cmd, p, result)
+        if result == mav.MAV_RESULT_ACCEPTED:
+            self._respond(cmd, p)                  # requested messages follow their ACK
 
     def _command_result(self, cmd: int, p: list) -> int:
         denied, accepted = mav.MAV_RESULT_DENIED, mav.MAV_RESULT_ACCEPTED
@@ -269,9 +272,7 @@ class QuadSitl:
             return accepted if all(math.isfinite(v) for v in p[:2]) else denied
         return mav.MAV_RESULT_UNSUPPORTED
 
-    def _after_ack(self, cmd: int, p: list, result: int) -> None:
-        if result != mav.MAV_RESULT_ACCEPTED:
-            return
+    def _apply(self, cmd: int, p: list) -> None:
         if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
             self._set_armed(p[0] >= 0.5)
         elif cmd == mav.MAV_CMD_NAV_TAKEOFF:
@@ -290,14 +291,16 @@ class QuadSitl:
                 self._land()
             else:
                 self._hold()
-        elif cmd == mav.MAV_CMD_REQUEST_MESSAGE:
+        elif cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
+            self._set_interval(int(p[0]), p[1])
+
+    def _respond(self, cmd: int, p: list) -> None:
+        if cmd == mav.MAV_CMD_REQUEST_MESSAGE:
             self._send_requested(int(p[0]))
         elif cmd == mav.MAV_CMD_GET_HOME_POSITION:
             self._send_requested(mav.MAVLINK_MSG_ID_HOME_POSITION)
         elif cmd == mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             self._send_requested(mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
-        elif cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
-            self._set_interval(int(p[0]), p[1])
 
     def _set_interval(self, msg_id: int, interval_us: float) -> None:
         if msg_id not in self.intervals:
