@@ -1,0 +1,151 @@
+"""The MAVLink quadrotor end to end with real processes on loopback: the PX4-like autopilot
+(``vflpcd sitl quad``) and the daemon (``vflpcd run``) talking MAVLink 2 over UDP through MAVSDK."""
+
+import json
+import os
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+from processes import Proc  # noqa: E402
+
+LOITER, LAND = (3 << 24) | (4 << 16), (6 << 24) | (4 << 16)
+
+
+def udp_port() -> int:
+    """A UDP port on 127.0.0.1 that nothing is bound to now (MAVSDK listens there)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def quad_mission(folder: Path, port: int, *, hold: float = 15.0) -> Path:
+    path = folder / "quad_sitl.toml"
+    path.write_text(f"""vehicle_id = "quad1"
+[platform]
+kind = "mavlink"
+url = "udpin://127.0.0.1:{port}"
+hold_s = 1.0
+[route]
+scenario = "uav_3d"
+[controller]
+name = "vflpc"
+model = "quadrotor.npz"
+[loop]
+rate_hz = 50
+[workers]
+executor = "process"
+[telemetry]
+enabled = false
+[failsafe]
+state_max_age = 0.1
+connect_timeout = 30.0
+hold = {hold}
+[log]
+dir = "{folder / 'logs'}"
+""")
+    return path
+
+
+def sitl(port: int, *params: str) -> Proc:
+    args = ["sitl", "quad", "--port", str(port)]
+    for p in params:
+        args += ["--param", p]
+    proc = Proc(*args)
+    proc.wait_line("event=sitl_started", 20)
+    return proc
+
+
+def sitl_stats(proc: Proc) -> dict:
+    return next(json.loads(line)["sitl_stats"] for line in proc.out if line.startswith('{"sitl_stats"'))
+
+
+def test_quadrotor_mission_through_mavsdk_takes_off_flies_the_course_and_lands(tmp_path):
+    port = udp_port()
+    mission = quad_mission(tmp_path, port)
+    autopilot = sitl(port)
+    daemon = Proc("run", str(mission))
+    try:
+        assert daemon.wait(150) == 0, daemon.text()[-3000:]
+    finally:
+        daemon.stop()
+        autopilot.stop()
+    out = "\n".join(daemon.out)
+    assert "mission_complete (exit code 0)" in out and "0 obstacles touched" in out, out
+    for step in ("event=takeoff", "event=offboard_started", "action=hold_then_land", "mode=LAND"):
+        daemon.wait_line(step, 0.1)
+    stats = sitl_stats(autopilot)
+    assert stats["landed_state"] == 1 and stats["offboard_losses"] == 0
+    assert stats["rejected_setpoints"] == 0 and stats["malformed"] == 0 and stats["setpoints"] > 1500
+
+
+def test_autopilot_killed_trips_the_failsafe_and_a_restarted_one_is_reconnected(tmp_path):
+    port = udp_port()
+    mission = quad_mission(tmp_path, port, hold=6.0)
+    autopilot = sitl(port)
+    daemon = Proc("run", str(mission))
+    autopilot2 = None
+    try:
+        daemon.wait_line("event=ready", 90)
+        time.sleep(2.0)
+        autopilot.p.kill()
+        t_kill = time.monotonic()
+        t_failsafe = daemon.wait_line("event=failsafe", 5)
+        reason = daemon.lines_with("event=failsafe")[0][1]
+        assert "reason=stale_state" in reason or "reason=link_lost" in reason   # state_max_age 0.1 s trips first
+        assert t_failsafe - t_kill < 0.6
+        autopilot2 = sitl(port)
+        daemon.wait_line("event=link_restored", 10, after=t_failsafe)
+        assert daemon.wait(30) == 3, daemon.text()[-2000:]
+    finally:
+        daemon.stop()
+        autopilot.stop()
+        if autopilot2 is not None:
+            autopilot2.stop()
+    # the restarted autopilot stands on the ground and was told to land (its safe state)
+    stats = sitl_stats(autopilot2)
+    assert stats["landed_state"] == 1 and stats["mode"] in ("AUTO.LAND", "AUTO.LOITER")
+
+
+def test_daemon_killed_the_autopilot_holds_then_lands(tmp_path):
+    port = udp_port()
+    mission = quad_mission(tmp_path, port)
+    autopilot = sitl(port, "COM_OF_LOSS_T=0.5", "NAV_OBL_HOLD_T=1.0", "MPC_LAND_SPEED=1.5")
+    daemon = Proc("run", str(mission))
+    try:
+        daemon.wait_line("event=ready", 90)
+        time.sleep(2.0)
+        daemon.p.kill()
+        t_kill = time.monotonic()
+        daemon.p.wait(5)                                   # the port is free once the process is gone
+        gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=245, source_component=190,
+                                         dialect="common")
+        seen, z = [], []
+        deadline = time.monotonic() + 15.0
+        while time.monotonic() < deadline:
+            m = gcs.recv_match(type=["HEARTBEAT", "LOCAL_POSITION_NED"], blocking=True, timeout=0.2)
+            if m is None:
+                continue
+            if m.get_type() == "LOCAL_POSITION_NED":
+                z.append(-m.z)
+            elif not seen or seen[-1][1:] != (m.custom_mode, m.base_mode & 128):
+                seen.append((time.monotonic(), m.custom_mode, m.base_mode & 128))
+            if seen and seen[-1][2] == 0:                  # disarmed after touchdown
+                break
+        gcs.close()
+    finally:
+        daemon.stop()
+        autopilot.stop()
+    modes = [mode for _, mode, _ in seen]
+    assert LOITER in modes and LAND in modes and modes.index(LOITER) < modes.index(LAND), seen
+    assert seen[-1][2] == 0 and z[-1] == pytest.approx(0.0, abs=0.01)
+    assert max(np.diff(z[::10]), default=0.0) < 0.05        # it came down, never climbed
+    stats = sitl_stats(autopilot)
+    assert stats["offboard_losses"] == 1 and stats["landed_state"] == 1
+    autopilot.wait_line("event=offboard_lost", 0.1, after=t_kill)
