@@ -206,3 +206,49 @@ def test_mission_options_are_checked():
 
 def test_frame_error_kinds_are_the_counted_ones():
     assert set(FRAME_ERRORS) == {"unknown_id", "dlc", "checksum", "range", "counter"}
+
+
+def test_fuzz_thousands_of_malformed_frames_are_counted_and_the_state_stays_right(channel):
+    """3000 malformed frames among the vehicle's valid ones: every one counted by kind, none used."""
+    rng = np.random.default_rng(11)
+
+    async def main():
+        node, d = Node(channel), driver(channel, state_timeout=1.0)
+        await d.connect()
+        sent = dict.fromkeys(("dlc", "checksum", "range", "unknown_id"), 0)
+        codec = node.codec
+        status = bytearray(codec.encode("VehicleStatus", {"Speed": 1, "YawRate": 0, "SteerAngle": 0, "Mode": 2,
+                                                          "FaultCmdTimeout": 0, "FaultBadCounter": 0,
+                                                          "FaultBadChecksum": 0, "FaultOutOfRange": 0}).data)
+        for i in range(3000):
+            kind = tuple(sent)[i % 4]
+            if kind == "dlc":
+                frame_id = int(rng.choice([0x200, 0x300, 0x301]))
+                data = bytes(rng.integers(0, 256, int(rng.integers(0, 8)), dtype=np.uint8))
+            elif kind == "checksum":
+                frame_id, data = 0x200, bytearray(status)
+                data[7] = (checksum(0x200, data) + 1 + int(rng.integers(0, 254))) & 0xFF
+            elif kind == "range":                               # heading beyond pi, no checksum on 0x301
+                frame_id = 0x301
+                data = bytearray(codec.encode("InsHeadingVelocity", {"Heading": 0.0, "VelX": 0.0, "VelY": 0.0,
+                                                                     "AliveCounter": 0}).data)
+                data[0:2] = int(rng.integers(31500, 32767)).to_bytes(2, "little", signed=True)
+            else:
+                frame_id, data = int(rng.integers(0x400, 0x7FF)), bytes(8)
+            sent[kind] += 1
+            node.bus.send(can.Message(arbitration_id=frame_id, data=bytes(data), is_extended_id=False))
+            if i % 100 == 0:
+                node.publish()
+                await asyncio.sleep(0.002)
+        node.publish()
+        await _settle(0.2)
+        stats, state = d.link_stats(), d.latest_state()
+        await d.close()
+        node.close()
+        return sent, stats, state
+    sent, stats, state = asyncio.run(main())
+    bad = stats["bad_frames"]
+    for kind, n in sent.items():
+        assert bad[kind] == n, (kind, bad)
+    assert bad["counter"] == 0 and stats["frames_ok"] == 3 * 31
+    np.testing.assert_allclose(state.state, [1.0, 2.0, 0.3, 5.0, 0.1, 0.05], atol=1e-3)
