@@ -14,7 +14,7 @@ $(BIN)/.installed: pyproject.toml
 setup: $(BIN)/.installed
 
 demo: $(BIN)/.installed
-	$(BIN)/vflpcd run config/missions/vehicle_inproc.toml --log-dir results/demo --plot
+	$(BIN)/vflpcd run config/missions/vehicle_can.toml --with-sitl --log-dir results/demo --plot
 
 test: $(BIN)/.installed
 	$(BIN)/pytest -q
