@@ -93,6 +93,7 @@ class CanVehicle:
         self.cycle_s = self.codec.message("VehicleCmd").cycle_time * 1e-3
         self.bad_frames = dict.fromkeys(FRAME_ERRORS, 0)
         self.frames_ok = 0
+        self.undecodable = 0                 # frames that passed the checks and still failed to decode
         self.frames_sent = 0
         self.send_failures = 0
         self.reconnects = 0
@@ -190,6 +191,7 @@ class CanVehicle:
 
     def link_stats(self) -> dict:
         return {"frames_ok": self.frames_ok, "frames_sent": self.frames_sent, "bad_frames": dict(self.bad_frames),
+                "undecodable": self.undecodable,
                 "send_failures": self.send_failures, "reconnects": self.reconnects, "ecu_mode": self.ecu_mode}
 
     # ------------------------------------------------------------------ bus
@@ -289,7 +291,8 @@ class CanVehicle:
                 self._count_bad(exc.kind, str(exc))
                 continue
             except Exception as exc:           # nothing on the bus may stop the receiver
-                self._count_bad("range", f"undecodable: {exc}")
+                self.undecodable += 1
+                log.warning("event=undecodable_frame id=0x%X reason=%s", msg.arbitration_id, exc)
                 continue
             self._take(frame.name, frame.signals)
 

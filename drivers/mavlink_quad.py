@@ -134,7 +134,7 @@ class MavlinkQuad:
         return self._latest
 
     def fault(self) -> str | None:
-        if self._pv is None or time.monotonic_ns() - self._pv[1] > self.telemetry_timeout * 1e9:
+        if self._telemetry_stale():
             return f"no position from the autopilot for {self.telemetry_timeout:g} s ({self.url})"
         if not self.connected:
             return "the autopilot link is down"
@@ -190,12 +190,13 @@ class MavlinkQuad:
         await self._try("hold", self._action.hold())
         await asyncio.sleep(self.hold_s)
         while self.landed_state != "ON_GROUND":
-            if self.flight_mode != "LAND" and not self.fault_is_link():
+            if self.flight_mode != "LAND" and not self._telemetry_stale():
                 await self._try("land", self._action.land())
             await asyncio.sleep(0.5)
         log.warning("event=landed")
 
-    def fault_is_link(self) -> bool:
+    def _telemetry_stale(self) -> bool:
+        """No position for ``telemetry_timeout`` s."""
         return self._pv is None or time.monotonic_ns() - self._pv[1] > self.telemetry_timeout * 1e9
 
     async def _try(self, what: str, coro) -> bool:
@@ -257,7 +258,7 @@ class MavlinkQuad:
     async def _watch_link(self) -> None:
         while True:
             await asyncio.sleep(0.05)
-            up = not self.fault_is_link() and self.connected
+            up = not self._telemetry_stale() and self.connected
             if up != self._link_up:
                 if not up:
                     self.link_losses += 1

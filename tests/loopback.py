@@ -14,6 +14,13 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that nothing is bound to now (e.g. for MAVSDK to listen on)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def wait_for(pred, timeout: float = 3.0) -> bool:
     """Poll ``pred`` every 5 ms until it is true or ``timeout`` s have passed; its last value."""
     end = time.monotonic() + timeout

@@ -63,6 +63,9 @@ def summary_lines(log: FlightLog, scenario, outcome=None) -> list[str]:
         if kind in kinds:
             first = next(e for e in log.events if e.kind == kind)
             add(kind, f"{kinds.count(kind)} (first at t={first.t:.2f} s: {first.detail.get('reason', '')})"[:160])
+    link = next((e.detail for e in log.events if e.kind == "link_stats"), None)
+    if link:
+        add("platform link", ", ".join(f"{k} {v}" for k, v in link.items())[:200])
     clear = clearances(log, scenario)
     if clear:
         worst = min(clear, key=clear.get)

@@ -109,7 +109,9 @@ def test_ready_watchdog_telemetry_and_sigterm(mission_file, port, tmp_path):
     assert {"state", "command", "reference", "timing", "health"} <= topics, topics
     assert all(enc.startswith("application/json") for _, enc, _ in got)
     states = [v for k, _, v in got if k.endswith("/state")]
-    assert len(states) >= 20 and states[-1]["mode"] == "running"      # 20 Hz
+    modes = [v["mode"] for v in states]                                 # 20 Hz; the last may follow SIGTERM
+    assert len(states) >= 20 and modes[0] == "running" and set(modes) <= {"running", "stopping"}
+    assert modes == sorted(modes, key=("running", "stopping").index)
     log = read_flight_log(next((tmp_path / "logs").glob("*.mcap")))
     assert not log.truncated and [e.kind for e in log.events][-1] == "stopping"
     assert "outcome" in out and "SIGTERM" in out

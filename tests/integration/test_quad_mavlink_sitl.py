@@ -3,7 +3,6 @@
 
 import json
 import os
-import socket
 import time
 from pathlib import Path
 
@@ -13,16 +12,10 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
+from loopback import free_udp_port  # noqa: E402
 from processes import Proc  # noqa: E402
 
 LOITER, LAND = (3 << 24) | (4 << 16), (6 << 24) | (4 << 16)
-
-
-def udp_port() -> int:
-    """A UDP port on 127.0.0.1 that nothing is bound to now (MAVSDK listens there)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def quad_mission(folder: Path, port: int, *, hold: float = 15.0) -> Path:
@@ -67,7 +60,7 @@ def sitl_stats(proc: Proc) -> dict:
 
 
 def test_quadrotor_mission_through_mavsdk_takes_off_flies_the_course_and_lands(tmp_path):
-    port = udp_port()
+    port = free_udp_port()
     mission = quad_mission(tmp_path, port)
     autopilot = sitl(port)
     daemon = Proc("run", str(mission))
@@ -86,7 +79,7 @@ def test_quadrotor_mission_through_mavsdk_takes_off_flies_the_course_and_lands(t
 
 
 def test_autopilot_killed_trips_the_failsafe_and_a_restarted_one_is_reconnected(tmp_path):
-    port = udp_port()
+    port = free_udp_port()
     mission = quad_mission(tmp_path, port, hold=6.0)
     autopilot = sitl(port)
     daemon = Proc("run", str(mission))
@@ -114,7 +107,7 @@ def test_autopilot_killed_trips_the_failsafe_and_a_restarted_one_is_reconnected(
 
 
 def test_daemon_killed_the_autopilot_holds_then_lands(tmp_path):
-    port = udp_port()
+    port = free_udp_port()
     mission = quad_mission(tmp_path, port)
     autopilot = sitl(port, "COM_OF_LOSS_T=0.5", "NAV_OBL_HOLD_T=1.0", "MPC_LAND_SPEED=1.5")
     daemon = Proc("run", str(mission))

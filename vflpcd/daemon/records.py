@@ -119,6 +119,7 @@ EVENT_KINDS = (
     "perception_rejected",  # detail: reason
     "mission_complete",   # detail: progress_m
     "stopping",           # detail: reason (signal name, mission_complete, failsafe)
+    "link_stats",         # the platform link's counters at the end (frames, bad frames by kind, setpoints, ...)
 )
 
 

@@ -205,6 +205,9 @@ class Daemon:
             if loop.mode == RUNNING:
                 loop.mode = STOPPING
                 await self._bounded(self.platform.failsafe(f"shutdown: {reason}"), 0.5)
+            link_stats = getattr(self.platform, "link_stats", None)
+            if link_stats is not None:
+                loop.event("link_stats", **link_stats())
             loop.event("stopping", reason=reason)
             loop.stop(0.5)
         await self._bounded(self.platform.close(), 0.5)

@@ -7,21 +7,16 @@ import time
 import numpy as np
 import pytest
 
+from loopback import free_udp_port
 from drivers.mavlink_quad import MavlinkQuad, mavlink_quad_from_scenario
 from sim.scenarios import load_scenario
 from sim.sitl.quad import QuadSitl
 from vflpcd.errors import ConfigError
 
 
-def udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture
 def autopilot():
-    port = udp_port()
+    port = free_udp_port()
     sitl = QuadSitl("127.0.0.1", port, params={"MPC_TKO_SPEED": 3.0})
     sitl.start()
     yield sitl, port
