@@ -119,6 +119,7 @@ def test_ecu_killed_trips_the_failsafe_and_a_restarted_ecu_is_reconnected(tmp_pa
         t_failsafe = daemon.wait_line("event=failsafe", 5)
         assert "link_lost" in daemon.lines_with("event=failsafe")[0][1]
         assert t_failsafe - t_kill < 0.5
+        daemon.wait_line("event=link_lost", 3, after=t_kill)      # the driver saw it go before it comes back
         ecu2 = Proc("sitl", "can-ecu", str(mission))
         daemon.wait_line("event=link_restored", 10, after=t_failsafe)
         assert daemon.wait(30) == 3, daemon.text()[-2000:]

@@ -93,6 +93,7 @@ def test_autopilot_killed_trips_the_failsafe_and_a_restarted_one_is_reconnected(
         reason = daemon.lines_with("event=failsafe")[0][1]
         assert "reason=stale_state" in reason or "reason=link_lost" in reason   # state_max_age 0.1 s trips first
         assert t_failsafe - t_kill < 0.6
+        daemon.wait_line("event=link_lost", 3, after=t_kill)      # the driver saw it go before it comes back
         autopilot2 = sitl(port)
         daemon.wait_line("event=link_restored", 10, after=t_failsafe)
         assert daemon.wait(30) == 3, daemon.text()[-2000:]
