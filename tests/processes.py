@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,3 +71,92 @@ class Proc:
 
     def text(self) -> str:
         return "\n".join(self.out) + "\n" + "\n".join(line for _, line in self.err)
+
+    def kill(self, timeout: float = 5.0) -> list["ProcInfo"]:
+        """SIGKILL it and see its descendants end too (``kill_tree``); those that lingered."""
+        lingered = kill_tree(self.p, timeout)
+        self.wait(5.0)
+        return lingered
+
+
+# Processes as /proc shows them (Linux): for the tests that nothing outlives a daemon they kill.
+
+@dataclass(frozen=True)
+class ProcInfo:
+    """One process: ids, state (``Z``: a zombie, ended), start time (clock ticks since boot: with
+    the pid, a process's identity) and command line."""
+
+    pid: int
+    ppid: int
+    pgrp: int
+    session: int
+    state: str
+    start: int
+    cmdline: str
+
+    def alive(self) -> bool:
+        now = proc_info(self.pid)
+        return now is not None and now.start == self.start and now.state != "Z"
+
+
+def proc_info(pid: int) -> ProcInfo | None:
+    """The process ``pid`` now, None when there is none."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+    fields = stat[stat.rindex(")") + 2:].split()         # the command name may hold spaces and ")"
+    return ProcInfo(pid, int(fields[1]), int(fields[2]), int(fields[3]), fields[0], int(fields[19]),
+                    cmdline.strip())
+
+
+def processes() -> list[ProcInfo]:
+    """Every process now."""
+    found = (proc_info(int(d.name)) for d in Path("/proc").iterdir() if d.name.isdigit())
+    return [p for p in found if p is not None]
+
+
+def descendants(pid: int) -> list[ProcInfo]:
+    """The living children of ``pid``, their children, and so on."""
+    table = [p for p in processes() if p.state != "Z"]
+    out, parents = [], {pid}
+    while True:
+        new = [p for p in table if p.ppid in parents and p not in out]
+        if not new:
+            return out
+        out += new
+        parents = {p.pid for p in new}
+
+
+def session_members(sid: int) -> list[ProcInfo]:
+    """The living processes of session ``sid`` or of process group ``sid``."""
+    return [p for p in processes() if sid in (p.session, p.pgrp) and p.state != "Z"]
+
+
+def wait_gone(procs: list[ProcInfo], timeout: float) -> list[ProcInfo]:
+    """Wait until none of ``procs`` is alive (at most ``timeout`` s); those still alive."""
+    deadline = time.monotonic() + timeout
+    while True:
+        left = [p for p in procs if p.alive()]
+        if not left or time.monotonic() >= deadline:
+            return left
+        time.sleep(0.02)
+
+
+def kill_tree(proc: subprocess.Popen, timeout: float = 5.0) -> list[ProcInfo]:
+    """SIGKILL ``proc`` (its descendants read first: once it is gone they have another parent),
+    reap it, give its descendants ``timeout`` s to end by themselves, then SIGKILL those left;
+    returns those that had to be killed."""
+    below = descendants(proc.pid) if proc.poll() is None else []
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait(5.0)
+    left = wait_gone(below, timeout)
+    for p in left:
+        if p.alive():
+            try:
+                os.kill(p.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+    return left

@@ -11,6 +11,13 @@ atomic append, never blocking); the control thread ``collect()``s them between t
 installs them in the controller there, so a result is taken whole between two ticks. A slow
 worker never stalls a tick; a failing job is reported as a ``Finished`` with its error; a worker
 process that dies breaks its pool, which is rebuilt on the next submit.
+
+A worker process dies with the daemon, however the daemon ends (SIGKILL included): its
+initializer starts ``lifeline.watch`` on the daemon's pid. The multiprocessing resource tracker
+then ends too: it exits when the last holder of its pipe's write end (the daemon and each worker,
+which inherits it at spawn) is gone. ``PR_SET_PDEATHSIG`` is not used here: the kernel ties it to
+the thread that started the process, and a pool's process is started by whichever thread submits
+to it first (an event-loop executor thread, the control thread after a rebuild).
 """
 
 from __future__ import annotations
@@ -26,6 +33,8 @@ from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 
+from vflpcd.daemon import lifeline
+
 log = logging.getLogger("vflpcd.daemon.workers")
 
 _PLANNER = None      # the guidance planner of this worker (set by the initializer)
@@ -34,7 +43,7 @@ _PLANNER = None      # the guidance planner of this worker (set by the initializ
 WORKER_NICE = 10     # workers yield the CPU to the control thread (CFS weight 110 against 1024)
 
 
-def _init_worker(planner) -> None:
+def _init_worker(planner, parent_pid: int | None = None) -> None:
     global _PLANNER
     _PLANNER = planner
     try:
@@ -43,6 +52,8 @@ def _init_worker(planner) -> None:
         log.warning("event=worker_nice_failed reason=%s", exc)
     if multiprocessing.current_process().name != "MainProcess":
         signal.signal(signal.SIGINT, signal.SIG_IGN)   # the daemon shuts its workers down itself
+        if parent_pid is not None:
+            lifeline.watch(parent_pid)                 # its thread inherits the nice value set above
 
 
 def _run_replan(job):
@@ -95,7 +106,7 @@ class Workers:
         if ex is None:
             if self.kind == "process":
                 ex = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                                         initializer=_init_worker, initargs=(self.planner,))
+                                         initializer=_init_worker, initargs=(self.planner, os.getpid()))
             else:
                 ex = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"worker-{which}",
                                         initializer=_init_worker, initargs=(self.planner,))

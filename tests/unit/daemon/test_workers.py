@@ -3,11 +3,14 @@ a dead worker process is replaced, and nothing blocks the caller."""
 
 import os
 import signal
+import subprocess
+import sys
 import time
 
 import numpy as np
 import pytest
 
+from processes import proc_info, wait_gone
 from sim.lpc import make_vflpc
 from sim.plants import make_plant
 from sim.scenarios import line_scenario_toml, load_scenario
@@ -98,3 +101,76 @@ def make_wall():
     from vflpcd.core.shapes import Circle
 
     return [ObstacleState("wall", Circle(3.0), np.array([40.0, 0.0]), 0.0, np.zeros(2), 0.0)]
+
+
+# Dying with the parent (vflpcd.daemon.lifeline): a parent process that starts a child, prints
+# the pids to watch, then waits to be SIGKILLed by the test.
+
+PARENT = """
+import subprocess, sys, threading, time
+from vflpcd.daemon import lifeline
+from vflpcd.daemon.workers import Workers
+
+if __name__ == "__main__":
+    how = sys.argv[1]
+    if how == "workers":                 # started by a thread that then ends
+        workers = Workers("process", None)
+        starter = threading.Thread(target=workers.start)
+        starter.start()
+        starter.join()
+        pids = [p.pid for ex in workers._executors.values() for p in ex._processes.values()]
+    else:
+        watch = [sys.executable, "-c", "import sys, time; from vflpcd.daemon import lifeline; "
+                 "lifeline.watch(int(sys.argv[1])); time.sleep(60)", str(__import__("os").getpid())]
+        argv = {"watch": watch, "pdeathsig": ["sleep", "60"], "none": ["sleep", "60"]}[how]
+        child = subprocess.Popen(argv, preexec_fn=lifeline.preexec() if how == "pdeathsig" else None)
+        pids = [child.pid]
+        time.sleep(1.0)                  # the watch thread has started
+    print(" ".join(map(str, pids)), flush=True)
+    time.sleep(120)
+"""
+
+
+@pytest.mark.parametrize("how", ["watch", "pdeathsig", "workers", "none"])
+def test_a_child_dies_with_its_sigkilled_parent(tmp_path, how):
+    script = tmp_path / "parent.py"
+    script.write_text(PARENT)
+    parent = subprocess.Popen([sys.executable, str(script), how], stdout=subprocess.PIPE, text=True)
+    children = []
+    try:
+        line = parent.stdout.readline()
+        children = [proc_info(int(pid)) for pid in line.split()]
+        assert children and all(c is not None and c.ppid == parent.pid for c in children), line
+        time.sleep(0.5)
+        assert all(c.alive() for c in children)            # they live while the parent does
+        os.kill(parent.pid, signal.SIGKILL)
+        parent.wait(5.0)
+        left = wait_gone(children, 2.0)
+        if how == "none":                                  # the control: without a lifeline, an orphan
+            assert left == children
+        else:
+            assert not left, left
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait(5.0)
+        parent.stdout.close()
+        for c in children:
+            if c is not None and c.alive():
+                os.kill(c.pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize("call", ["watch", "arm"])
+def test_a_child_whose_parent_is_gone_already_is_killed_at_once(call):
+    not_its_parent = os.getppid()      # what the child sees after its parent died: another parent
+    run = subprocess.run([sys.executable, "-c", f"from vflpcd.daemon import lifeline; "
+                          f"lifeline.{call}({not_its_parent}); print('survived')"],
+                         capture_output=True, text=True, timeout=30)
+    assert run.returncode == -signal.SIGKILL and "survived" not in run.stdout, run.stderr
+
+
+def test_a_watched_child_lives_on_while_its_parent_does():
+    run = subprocess.run([sys.executable, "-c", "import os, time; from vflpcd.daemon import lifeline; "
+                          "lifeline.watch(os.getppid()); time.sleep(0.3); print('alive')"],
+                         capture_output=True, text=True, timeout=30)
+    assert run.returncode == 0 and run.stdout.strip() == "alive", run.stderr
