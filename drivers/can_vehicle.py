@@ -19,7 +19,10 @@ timeout, or manual) while the daemon commands. A lost bus is reopened every ``re
 frames from a restarted ECU are taken again at once (``link_restored`` in the log).
 
 Safe action (``failsafe``): AccelCmd = a_min with the steering held until the vehicle stands
-still, then Enable = 0 (the ECU holds the brakes in ``ready``).
+still, then Enable = 0 (the ECU holds the brakes in ``ready``). ``at_rest``: the last VehicleStatus
+reported a standstill; the daemon waits for it before it exits.
+``close`` sends Enable = 0 as the last command of an engaged vehicle (the hand-back: the ECU
+brakes to ``ready``).
 
 ``bus_log``: every frame received and sent, in python-can's format for the file's suffix
 (.asc, .log, .blf), readable by cantools with the same DBC.
@@ -179,6 +182,8 @@ class CanVehicle:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         self._tasks, self._rx_task = [], None
+        if self._enabled:
+            self._transmit(0.0, 0.0, enable=False)           # hand back: the ECU brakes to ready
         self._close_bus()
         if self._logger is not None:
             self._logger.stop()
@@ -187,6 +192,7 @@ class CanVehicle:
 
     @property
     def at_rest(self) -> bool:
+        """The last VehicleStatus reported a standstill."""
         return self._latest is not None and abs(self._speed) < STANDSTILL
 
     def link_stats(self) -> dict:

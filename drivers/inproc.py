@@ -10,10 +10,13 @@ time) with the last command held (zero-order hold). ``latest_state()`` returns t
 Safe actions, as the real platforms do them: the vehicle brakes at its full deceleration with
 the steering held until it stands still; the quadrotor holds its position for ``hold_s`` and
 then lands (descends at ``land_speed`` to ``ground_z`` and stops its motors). A failsafe is
-latched: later commands are ignored.
+latched: later commands are ignored. ``at_rest`` (standing still below 0.05 m/s, or landed) is
+what the daemon waits for before it exits; the physics runs until ``close``.
 
 Fault injection for tests and drills (``inject``): "freeze" (the state stops updating: stale),
-"nan" (non-finite states), "link" (``fault()`` reports a lost link and states stop).
+"nan" (non-finite states), "link" (``fault()`` reports a lost link and states stop), "stuck" (the
+actuators stick at ``STUCK_COMMAND`` in the first control and zero in the others, a throttle that
+stays open, and ignore the daemon's commands; the safe action still acts).
 """
 
 from __future__ import annotations
@@ -28,7 +31,8 @@ from vflpcd.core.ports import StampedState
 
 log = logging.getLogger("drivers.inproc")
 
-FAULTS = ("freeze", "nan", "link")
+FAULTS = ("freeze", "nan", "link", "stuck")
+STUCK_COMMAND = 2.0           # the "stuck" actuators' first control: a_x (vehicle) or a_x (quadrotor), m/s^2
 
 
 class InProcPlatform:
@@ -83,7 +87,8 @@ class InProcPlatform:
         if u.shape != self._command.shape or not np.all(np.isfinite(u)):
             raise ValueError(f"command must be {len(self.control_names)} finite numbers {self.control_names}, got {u!r}")
         if self.failsafe_reason is None:
-            self._command = u
+            if self._fault != "stuck":
+                self._command = u
             self.commands += 1
 
     async def failsafe(self, reason: str) -> None:
@@ -105,6 +110,9 @@ class InProcPlatform:
         if fault is not None and fault not in FAULTS:
             raise ValueError(f"unknown fault {fault!r} (known: {', '.join(FAULTS)})")
         self._fault = fault
+        if fault == "stuck":
+            self._command = np.zeros_like(self._command)
+            self._command[0] = STUCK_COMMAND
 
     @property
     def at_rest(self) -> bool:

@@ -11,7 +11,10 @@ Life cycle, as a PX4 offboard application flies it:
 4. ``send``: one acceleration setpoint per control tick (ENU converted to NED, its norm clipped
    to ``accel_max``), paced by the control loop;
 5. ``failsafe``: hold for ``hold_s`` seconds, then land (repeated while the link is down, so an
-   autopilot that comes back lands); ``close`` lands a vehicle still in the air.
+   autopilot that comes back lands; ``event=land_commanded`` once the autopilot accepted it); on
+   the ground it disarms a vehicle still armed; ``close`` lands a vehicle still in the air.
+   ``at_rest``: the autopilot reports the vehicle on the ground and disarmed (the daemon waits
+   for it before it exits).
 
 State (the quadrotor plant's order: X, Y, Z, vx, vy, vz, qw, qx, qy, qz, p, q, r): position and
 velocity from LOCAL_POSITION_NED, attitude from ATTITUDE_QUATERNION, body rates from ATTITUDE,
@@ -175,23 +178,27 @@ class MavlinkQuad:
 
     @property
     def at_rest(self) -> bool:
-        """Landed (on the ground, as the autopilot reports it)."""
-        return self.landed_state == "ON_GROUND"
+        """Landed and disarmed, as the autopilot reports it."""
+        return self.landed_state == "ON_GROUND" and self.armed is False
 
     def link_stats(self) -> dict:
         return {"setpoints": self.setpoints, "send_failures": self.send_failures, "link_losses": self.link_losses,
-                "flight_mode": self.flight_mode, "landed_state": self.landed_state}
+                "flight_mode": self.flight_mode, "landed_state": self.landed_state, "armed": self.armed}
 
     # ------------------------------------------------------------------ safe action
     async def _hold_then_land(self) -> None:
-        """Hold, then land; while the autopilot is unreachable keep trying, so that it lands once back."""
+        """Hold, then land; while the autopilot is unreachable keep trying, so that it lands once back.
+        A vehicle on the ground that is still armed (e.g. stopped before its take-off) is disarmed."""
         if self.in_air is False:
+            if self.armed:
+                await self._try("disarm", self._action.disarm())
             return
         await self._try("hold", self._action.hold())
         await asyncio.sleep(self.hold_s)
         while self.landed_state != "ON_GROUND":
             if self.flight_mode != "LAND" and not self._telemetry_stale():
-                await self._try("land", self._action.land())
+                if await self._try("land", self._action.land()):
+                    log.warning("event=land_commanded altitude=%.2f", self._altitude())
             await asyncio.sleep(0.5)
         log.warning("event=landed")
 
@@ -266,6 +273,10 @@ class MavlinkQuad:
                 self._link_up = up
 
     # ------------------------------------------------------------------ helpers
+    def _altitude(self) -> float:
+        """Height above the autopilot's local origin (m; NaN before the first position)."""
+        return float(self._latest.state[2] - self.origin[2]) if self._latest is not None else float("nan")
+
     def _target_z(self) -> float:
         return float(self.origin[2] + self.takeoff_altitude)
 

@@ -21,14 +21,17 @@ def metrics_table(record: RunRecord, scenario: Scenario) -> str:
     rows = [
         ("scenario", f"{scenario.name} ({scenario.platform}, {scenario.plant}/{scenario.params})"),
         ("controller", f"{record.controller} (seed {record.seed})"),
-        ("outcome", f"{record.outcome} after {m['steps']} steps"),
+        ("outcome", f"{record.outcome} after {m['steps']} steps" + (f" ({record.failsafe})" if record.failsafe else "")),
+        ("supervisor interventions", f"{m['interventions']} ({m['override_ticks']} ticks overridden; "
+                                     f"{m['t_sup_median'] * 1e6:.0f} / {m['t_sup_p99'] * 1e6:.0f} us median / p99)"),
         ("J_MC", _fmt(m["J_MC"], digits=4)),
         ("  J_Lat / J_Heading / J_Con", f"{m['J_Lat']:.4f} / {m['J_Heading']:.4f} / {m['J_Con']:.4f}"),
         ("L_p", _fmt(m["L_p"], " m", digits=2)),
         ("t_com", _fmt(m["t_com"], " s", digits=2)),
         ("t_cal median / p99", f"{m['t_cal_median'] * 1e3:.3f} / {m['t_cal_p99'] * 1e3:.3f} ms"),
         ("min clearance", _fmt(m["min_clearance"], " m", digits=2)),
-        ("collisions", str(m["collisions"])),
+        ("collisions", str(m["collisions"]) + (f" (first at {m['impact_speed']:.2f} m/s)"
+                                               if m["impact_speed"] is not None else "")),
         ("RMS lateral error", _fmt(m["rms_lateral_error"], " m", digits=3)),
         ("peak lateral acceleration", _fmt(m["peak_lateral_acceleration"], " m/s^2", digits=2)),
     ]

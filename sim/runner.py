@@ -1,13 +1,19 @@
-"""Offline closed loop: plant + controller + obstacles stepped as fast as possible.
+"""Offline closed loop: plant + controller + safety guard + obstacles stepped as fast as possible.
 
 Each control step k at t_k = k * control_period: the obstacle triggers are updated from
 the robot position, the controller maps (x_k, t_k, perceived obstacles) to u_k (its wall
-time is t_cal), everything is recorded, and the plant integrates u_k over one period. A
-controller with worker work (``background()``: VF-LPC's replans and GP refits, which the daemon
-runs on workers) does it after the plant step, outside t_cal; its wall time is t_background.
-The run ends when the robot's progress along the path reaches the goal (``completed``),
-when t_max is reached (``timeout``), or when the controller or the plant produces a
-non-finite value (``diverged``).
+time is t_cal), the safety guard (``vflpcd.core.safety``, the same as in the daemon) passes u_k or
+replaces it with the emergency manoeuvre (its wall time is t_sup), everything is recorded, and the
+plant integrates the command over one period. A controller with worker work (``background()``:
+VF-LPC's replans and GP refits, which the daemon runs on workers) does it after the plant step,
+outside t_cal; its wall time is t_background.
+
+The run ends when the robot's progress along the path reaches the goal (``completed``), when
+t_max is reached (``timeout``), when the controller or the plant produces a non-finite value
+(``diverged``), or when the guard gives up the mission or the controller raises (a failsafe: the
+emergency manoeuvre is then applied until the body is at rest): ``stopped`` when the supervisor held the body at rest in front
+of an obstacle for the monitors' ``blocked_s``, ``failsafe`` for the other monitors. A run in which
+the body touched an obstacle ends ``collision``, whatever else happened.
 """
 
 from __future__ import annotations
@@ -23,6 +29,12 @@ from sim.plants import make_plant
 from sim.scenarios import Scenario
 from vflpcd.core.path import progress_delta
 from vflpcd.core.ports import Controller
+from vflpcd.core.safety.guard import SafetyGuard
+from vflpcd.safety import guard_for
+
+REST_HOLD_S = 0.5      # after a failsafe, the run ends once the body has been at rest this long
+# `vflpcd sim`'s exit code per outcome (the daemon's codes: 3 the safety layer stopped it, 5 a collision)
+OUTCOME_EXIT = {"completed": 0, "timeout": 1, "diverged": 1, "stopped": 3, "failsafe": 3, "collision": 5}
 
 
 @dataclass
@@ -34,7 +46,9 @@ class RunRecord:
     limits; t_cal (M,) s; ref_point (M, d) and ref_heading (M,) nearest path point and its
     tangent yaw; lateral (M,); progress (M,) arc length covered; obstacle_center
     (M, n_obs, d); clearance (M, n_obs), NaN while an obstacle is absent; t_background (M,) s
-    of worker work after each step (0 for a controller without any).
+    of worker work after each step (0 for a controller without any); sent (M, n_u) the command
+    after the safety guard; override (M,) 1 where the supervisor replaced it; t_sup (M,) s of the
+    guard's work; failsafe: the guard's reason for giving up ("" if it did not).
     """
 
     scenario: str
@@ -57,22 +71,36 @@ class RunRecord:
     obstacle_center: np.ndarray
     clearance: np.ndarray
     t_background: np.ndarray
+    sent: np.ndarray
+    override: np.ndarray
+    t_sup: np.ndarray
     outcome: str
     t_com: float | None
+    failsafe: str = ""
+    interventions: int = 0
     metrics: dict = field(default_factory=dict)
 
 
-def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0) -> RunRecord:
-    """Run ``controller`` on ``scenario`` and return the record with its metrics."""
+def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0, *,
+                    supervised: bool = True, guard: SafetyGuard | None = None) -> RunRecord:
+    """Run ``controller`` on ``scenario`` behind the safety guard (``guard``, default: the route's
+    from config/safety.toml; ``supervised=False`` runs without any, for comparison) and return the
+    record with its metrics."""
     plant = make_plant(scenario, seed)
     world = ObstacleWorld(scenario.obstacles)
     controller.reset()
     dt = scenario.control_period
+    if supervised and guard is None:
+        guard = guard_for(scenario, dt, plant.state_names)
+    if guard is not None:
+        guard.reset()
     n_steps = int(np.ceil(scenario.t_max / dt)) + 1
     rows: dict[str, list] = {k: [] for k in ("t", "state", "position", "velocity", "psi", "command", "applied",
                                              "t_cal", "ref_point", "ref_heading", "lateral", "progress",
-                                             "obstacle_center", "clearance", "t_background")}
+                                             "obstacle_center", "clearance", "t_background", "sent",
+                                             "override", "t_sup")}
     s_prev, progress, outcome, t_com = None, 0.0, "timeout", None
+    failsafe, rest_since = "", None
     background = getattr(controller, "background", None)
     for k in range(n_steps):
         t = k * dt
@@ -84,9 +112,26 @@ def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0) -
         s_prev = proj.s
         world.update(t, pos)
         perceived = world.snapshot(t)
-        t0 = time.perf_counter_ns()
-        u = np.asarray(controller.step(x, t, perceived), dtype=float)
-        t_cal = (time.perf_counter_ns() - t0) * 1e-9
+        if failsafe:
+            u, t_cal = guard.emergency(x), 0.0
+        else:
+            t0 = time.perf_counter_ns()
+            try:
+                u = np.asarray(controller.step(x, t, perceived), dtype=float)
+            except Exception as exc:      # as in the daemon: the controller failed, the guard stops the body
+                if guard is None:
+                    raise
+                failsafe = f"controller_error: {type(exc).__name__}: {exc}"[:300]
+                u = guard.emergency(x)
+            t_cal = (time.perf_counter_ns() - t0) * 1e-9
+        finite = u.shape == (len(plant.control_names),) and bool(np.all(np.isfinite(u)))
+        sent, override, t_sup = u, False, 0.0
+        if guard is not None and finite and not failsafe:
+            t0 = time.perf_counter_ns()
+            gs = guard.step(t, x, u, perceived, controller, route_error=abs(proj.lateral))
+            t_sup = (time.perf_counter_ns() - t0) * 1e-9
+            sent, override = gs.command, gs.verdict.override
+            failsafe = gs.trip or ""
 
         centers = np.array([world.center(i, t) for i in range(len(world.specs))]).reshape(-1, scenario.dim)
         clear = np.array([scenario.footprint.clearance(o.shape, centers[i], o.yaw, pos, yaw)
@@ -96,7 +141,8 @@ def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0) -
                            ("psi", heading_ref if psi is None else psi), ("command", u),
                            ("t_cal", t_cal), ("ref_point", proj.point), ("ref_heading", heading_ref),
                            ("lateral", proj.lateral), ("progress", progress),
-                           ("obstacle_center", centers), ("clearance", clear)):
+                           ("obstacle_center", centers), ("clearance", clear), ("sent", sent),
+                           ("override", float(override)), ("t_sup", t_sup)):
             rows[key].append(value)
         rows["t_background"].append(0.0)
 
@@ -104,13 +150,20 @@ def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0) -
             outcome, t_com = "completed", t
             rows["applied"].append(np.full(len(plant.control_names), np.nan))
             break
-        if u.shape != (len(plant.control_names),) or not np.all(np.isfinite(u)):
+        if not finite:
             outcome = "diverged"
             rows["applied"].append(np.full(len(plant.control_names), np.nan))
             break
-        plant.step(u, dt)
+        if failsafe:
+            rest_since = (rest_since if rest_since is not None else t) if SafetyGuard.at_rest(
+                float(np.linalg.norm(vel))) else None
+            if rest_since is not None and t - rest_since >= REST_HOLD_S:
+                outcome = "stopped" if failsafe.startswith("blocked") else "failsafe"
+                rows["applied"].append(np.full(len(plant.control_names), np.nan))
+                break
+        plant.step(sent, dt)
         rows["applied"].append(plant.applied_control)
-        if background is not None:
+        if background is not None and not failsafe:
             t0 = time.perf_counter_ns()
             background()
             rows["t_background"][-1] = (time.perf_counter_ns() - t0) * 1e-9
@@ -123,7 +176,8 @@ def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0) -
     arr["clearance"] = arr["clearance"].reshape(len(arr["t"]), len(scenario.obstacles))
     record = RunRecord(scenario=scenario.name, controller=controller.name, seed=seed,
                        state_names=tuple(plant.state_names), control_names=tuple(plant.control_names),
-                       outcome=outcome, t_com=t_com, **arr)
+                       outcome=outcome, t_com=t_com, failsafe=failsafe,
+                       interventions=guard.interventions if guard is not None else 0, **arr)
     record.metrics = evaluate(record, scenario)
     return record
 
@@ -138,6 +192,23 @@ def evaluate(record: RunRecord, scenario: Scenario) -> dict:
         u_tilde=record.applied[ok], t_cal=record.t_cal, clearance=record.clearance,
         q1=w.q1, q2=w.q2, R=w.R, t_com=record.t_com)
     metrics["t_background_max"] = float(np.max(record.t_background)) if len(record.t_background) else 0.0
+    if metrics.get("collisions", 0) > 0:
+        record.outcome = "collision"
     metrics["outcome"] = record.outcome
+    metrics["failsafe"] = record.failsafe
     metrics["steps"] = int(len(record.t))
+    metrics["interventions"] = int(record.interventions)
+    metrics["override_ticks"] = int(np.sum(record.override))
+    sup = record.t_sup[record.t_sup > 0]
+    metrics["t_sup_median"] = float(np.median(sup)) if sup.size else 0.0
+    metrics["t_sup_p99"] = float(np.percentile(sup, 99)) if sup.size else 0.0
+    metrics["impact_speed"] = impact_speed(record)
     return metrics
+
+
+def impact_speed(record: RunRecord) -> float | None:
+    """The body's speed (m/s) at its first contact with an obstacle, None without contact."""
+    with np.errstate(invalid="ignore"):
+        touching = np.any(record.clearance <= 0.0, axis=1) if record.clearance.size else np.zeros(len(record.t), bool)
+    hits = np.flatnonzero(touching)
+    return float(np.linalg.norm(record.velocity[hits[0]])) if hits.size else None

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.footprint import Footprint
+from vflpcd.core.footprint import Footprint
 from sim.plants.dynamic_bicycle import BicycleConfig
 from vflpcd.core.guidance.params import GuidanceParams
 from vflpcd.core.path import ReferencePath

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import socket
 import time
 
@@ -29,3 +30,14 @@ def wait_for(pred, timeout: float = 3.0) -> bool:
             return True
         time.sleep(0.005)
     return pred()
+
+
+def zenoh_peer(port: int):
+    """A Zenoh peer session that connects to 127.0.0.1:``port`` (multicast scouting off)."""
+    import zenoh
+
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"peer"')
+    cfg.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(cfg)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from vflpcd.errors import ConfigError
@@ -29,6 +30,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=None,
                    help="output folder for results.json and plot.png (default results/SCENARIO-CONTROLLER-sSEED)")
     p.add_argument("--no-plot", action="store_true", help="skip the PNG")
+    p.add_argument("--no-supervisor", action="store_true",
+                   help="run without the safety supervisor and monitors (for comparison only)")
     p.set_defaults(func=cmd_sim)
 
     p = sub.add_parser("collect", add_help=False, help="record seeded random-excitation logs of a simulated plant "
@@ -73,13 +76,22 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
     b.set_defaults(func=cmd_bench_variants)
 
+    b = bench.add_parser("safety", help="every controller behind the safety supervisor on scenes with no or only "
+                                        "a tight safe path, with and without it (collisions, stops, impact speeds)")
+    b.add_argument("--scene", action="append", default=None,
+                   help="a scene of config/scenarios/safety/ (repeatable; default all)")
+    b.add_argument("--controller", action="append", default=None,
+                   help="a controller (repeatable; default vflpc, nmpc_cbf, koopman_mpc, pure_pursuit)")
+    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    b.set_defaults(func=cmd_bench_safety)
+
     p = sub.add_parser("run", help="run a mission: the daemon (fixed-rate VF-LPC loop, workers, telemetry, log)")
     p.add_argument("mission", type=Path, help="mission file (config/missions/*.toml)")
     p.add_argument("--log-dir", type=Path, default=None, help="flight-log folder (default: the mission's log.dir)")
     p.add_argument("--plot", action="store_true", help="also render the flight log to PNG at the end")
     p.add_argument("--drill", default=None, metavar="KIND@SECONDS",
                    help="inject a fault at a mission time to exercise the failsafe (stall, error, overrun, nan, "
-                        "freeze, nan_state, link)")
+                        "veer, freeze, nan_state, link, stuck)")
     p.add_argument("--with-sitl", action="store_true",
                    help="start the platform's mock first (can: the CAN hub and vflpcd sitl can-ecu; "
                         "mavlink: vflpcd sitl quad) and stop it at the end")
@@ -141,13 +153,13 @@ def main(argv: list[str] | None = None) -> int:
 def cmd_sim(args) -> int:
     from sim.baselines import DEFAULT_CONTROLLER, make_controller
     from sim.report import metrics_table, write_results
-    from sim.runner import run_closed_loop
+    from sim.runner import OUTCOME_EXIT, run_closed_loop
     from sim.scenarios import load_scenario
 
     scenario = load_scenario(args.scenario)
     name = args.controller or DEFAULT_CONTROLLER[scenario.platform]
     controller = make_controller(name, scenario)
-    record = run_closed_loop(scenario, controller, seed=args.seed)
+    record = run_closed_loop(scenario, controller, seed=args.seed, supervised=not args.no_supervisor)
     out = args.out or Path("results") / f"{scenario.name}-{name}-s{args.seed}"
     out.mkdir(parents=True, exist_ok=True)
     print(metrics_table(record, scenario))
@@ -158,7 +170,7 @@ def cmd_sim(args) -> int:
         files.append(plot_run(record, scenario, out / "plot.png"))
     for f in files:
         print(f"wrote {f}")
-    return 0
+    return OUTCOME_EXIT[record.outcome]
 
 
 def cmd_sitl(name: str, argv: list[str]) -> int:
@@ -240,6 +252,22 @@ def cmd_bench_variants(args) -> int:
     return 0
 
 
+def cmd_bench_safety(args) -> int:
+    from sim.bench.safety import CONTROLLERS, SCENES, bench_safety
+
+    scenes = tuple(args.scene or SCENES)
+    for name in scenes:
+        if name not in SCENES:
+            raise ConfigError("command line", "--scene", f"no such scene {name!r} (have: {', '.join(SCENES)})")
+    controllers = tuple(args.controller or CONTROLLERS)
+    for name in controllers:
+        if name not in CONTROLLERS:
+            raise ConfigError("command line", "--controller",
+                              f"expected one of {', '.join(CONTROLLERS)} (ground controllers), got {name!r}")
+    bench_safety(args.out, scenes, controllers)
+    return 0
+
+
 def cmd_bench_dynamics(args) -> int:
     from sim.bench.dynamics import bench_dynamics
     from vflpcd.core.dynamics.koopman import load_koopman
@@ -256,7 +284,8 @@ def cmd_run(args) -> int:
     from vflpcd.flightlog import read_flight_log
     from vflpcd.mission import load_mission
     from vflpcd.run import run_mission
-    from vflpcd.summary import summary_lines
+    from vflpcd.daemon.service import EXIT_COLLISION
+    from vflpcd.summary import clearances, summary_lines, touched_obstacles
 
     drill = Drill.parse(args.drill) if args.drill else None
     mission = load_mission(args.mission)
@@ -273,6 +302,10 @@ def cmd_run(args) -> int:
         result = run_mission(mission, drill=drill, log_dir=args.log_dir)
     if result.log_path is not None and result.log_path.exists():
         log = read_flight_log(result.log_path)
+        touched = touched_obstacles(clearances(log, mission.scenario))
+        if touched and result.outcome.code != EXIT_COLLISION:     # contact is never a success
+            result.outcome = replace(result.outcome, code=EXIT_COLLISION,
+                                     reason=f"collision: touched {', '.join(touched)} ({result.outcome.reason})")
         print("\n".join(summary_lines(log, mission.scenario, result.outcome)))
         if args.plot:
             from vflpcd.logplot import plot_flight_log

@@ -2,9 +2,11 @@
 
 ``--drill KIND@SECONDS`` (``vflpcd run``) starts fault KIND at mission time SECONDS:
 - controller faults: ``stall`` (one step hangs for ``STALL_S``), ``error`` (every step raises),
-  ``overrun`` (every step takes 1.5 control periods), ``nan`` (the command becomes NaN);
+  ``overrun`` (every step takes 1.5 control periods), ``nan`` (the command becomes NaN), ``veer``
+  (the command's last entry is held at ``VEER``: the car steers off its path);
 - platform faults (the in-process platform only): ``freeze`` (the state stops updating),
-  ``nan_state`` (non-finite states), ``link`` (the driver reports a lost link).
+  ``nan_state`` (non-finite states), ``link`` (the driver reports a lost link), ``stuck`` (the
+  actuators stick, a throttle open, and ignore the commands).
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ import numpy as np
 
 from vflpcd.errors import ConfigError
 
-CONTROLLER_FAULTS = ("stall", "error", "overrun", "nan")
-PLATFORM_FAULTS = {"freeze": "freeze", "nan_state": "nan", "link": "link"}
+CONTROLLER_FAULTS = ("stall", "error", "overrun", "nan", "veer")
+PLATFORM_FAULTS = {"freeze": "freeze", "nan_state": "nan", "link": "link", "stuck": "stuck"}
+VEER = 0.3          # "veer": the command's last entry (the car's steering angle, rad) is held at this
 STALL_S = 1.5
 
 
@@ -54,6 +57,14 @@ class DrillController:
     def __getattr__(self, name):              # the inner controller's job API, counters and plan
         return getattr(self.inner, name)
 
+    @property
+    def plan_gate(self):
+        return self.inner.plan_gate
+
+    @plan_gate.setter
+    def plan_gate(self, gate) -> None:          # the safety guard's, on the controller that installs plans
+        self.inner.plan_gate = gate
+
     def reset(self) -> None:
         self.inner.reset()
 
@@ -73,4 +84,8 @@ class DrillController:
                 time.sleep(1.5 * self.period_s)
             elif kind == "nan":
                 return np.full_like(np.asarray(self.inner.step(state, t, obstacles), dtype=float), np.nan)
+            elif kind == "veer":
+                u = np.array(self.inner.step(state, t, obstacles), dtype=float)
+                u[-1] = VEER
+                return u
         return self.inner.step(state, t, obstacles)

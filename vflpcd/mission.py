@@ -16,6 +16,7 @@ from vflpcd.daemon.config import EXECUTORS, MAX_RATE_HZ, FailsafePolicy, LoopCon
 from vflpcd.daemon.telemetry import TelemetryConfig, check_vehicle_id
 from vflpcd.errors import ConfigError
 from vflpcd.paths import config_dir
+from vflpcd.safety import safety_settings
 from vflpcd.tomlread import Table, load_toml
 
 PLATFORM_KINDS = {"inproc": ("ground", "aerial"), "mavlink": ("aerial",), "can": ("ground",)}
@@ -44,6 +45,7 @@ class Mission:
     workers: WorkerConfig
     telemetry: TelemetryConfig
     failsafe: FailsafePolicy
+    safety: tuple                # (SupervisorConfig, MonitorConfig) of vflpcd.core.safety
     log_dir: Path
     text: str                   # the mission file as written (kept in the flight log)
 
@@ -55,7 +57,7 @@ def load_mission(path: str | Path) -> Mission:
     file = Path(path)
     root = Table(load_toml(file), file)
     root.check_known({"vehicle_id", "description", "platform", "route", "controller", "loop", "workers",
-                      "telemetry", "failsafe", "log"})
+                      "telemetry", "failsafe", "safety", "log"})
     vehicle_id = root.string("vehicle_id")
     try:
         check_vehicle_id(vehicle_id)
@@ -96,16 +98,21 @@ def load_mission(path: str | Path) -> Mission:
     telemetry = TelemetryConfig.from_table(root.table("telemetry", {}))
 
     fs = root.table("failsafe", {})
-    fs.check_known({"state_max_age", "overrun_streak", "stall", "connect_timeout", "hold"})
+    fs.check_known({"state_max_age", "overrun_streak", "stall", "connect_timeout", "hold", "land_timeout",
+                    "brake_timeout"})
     failsafe = FailsafePolicy(state_max_age=fs.number("state_max_age", 0.2, positive=True),
                               overrun_streak=fs.integer("overrun_streak", 5, min=1),
                               stall=fs.number("stall", 0.5, positive=True),
                               connect_timeout=fs.number("connect_timeout", 30.0, positive=True),
-                              hold=fs.number("hold", 3.0, min=0.0))
+                              hold=fs.number("hold", 3.0, min=0.0),
+                              land_timeout=fs.number("land_timeout", 60.0, positive=True, max=3600.0),
+                              brake_timeout=fs.number("brake_timeout", 10.0, positive=True, max=600.0))
     if failsafe.state_max_age < loop.period_s:
         raise fs.error("state_max_age", f"must be at least one control period ({loop.period_s:g} s)")
     if failsafe.stall < 2.0 * loop.period_s:
         raise fs.error("stall", f"must be at least two control periods ({2 * loop.period_s:g} s)")
+
+    safety = safety_settings(scenario.platform, root.table("safety", {}))
 
     lg = root.table("log", {})
     lg.check_known({"dir"})
@@ -117,7 +124,7 @@ def load_mission(path: str | Path) -> Mission:
     return Mission(file=file, vehicle_id=vehicle_id, description=root.string("description", ""),
                    platform=platform, scenario=scenario, controller=controller, model_path=model_path,
                    compensation=compensation, loop=loop, workers=workers, telemetry=telemetry,
-                   failsafe=failsafe, log_dir=log_dir, text=file.read_text(errors="replace"))
+                   failsafe=failsafe, safety=safety, log_dir=log_dir, text=file.read_text(errors="replace"))
 
 
 def _find(name: str, mission_file: Path, folder: str, suffix: str, table: Table, key: str) -> Path:

@@ -1,7 +1,7 @@
 """``vflpcd run``: a mission wired into the daemon (the composition root of a run).
 
 Builds, from a validated ``Mission``: the platform driver, the controller (VF-LPC by default) at
-the mission's rate, the mission's obstacles (``sim.obstacle_world``: static ones, and moving ones
+the mission's rate, the safety guard between the two (``vflpcd.safety``), the mission's obstacles (``sim.obstacle_world``: static ones, and moving ones
 with their triggers), progress along the route, the workers, the flight recorder, the Zenoh
 telemetry and perception input, and the daemon; runs it and returns the outcome and the log.
 """
@@ -22,6 +22,7 @@ from vflpcd.daemon.service import Daemon, Outcome
 from vflpcd.drill import Drill, DrillController
 from vflpcd.errors import ConfigError
 from vflpcd.mission import Mission, build_controller
+from vflpcd.safety import guard_for
 
 log = logging.getLogger("vflpcd.run")
 
@@ -124,10 +125,12 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
     obstacles = mission_obstacles(sc, platform.state_names)
     sinks = Sinks(recorder=recorder, telemetry=telemetry)
 
+    guard = guard_for(sc, loop_cfg.period_s, platform.state_names, mission.safety)
+
     def make_loop(aio) -> ControlLoop:
         return ControlLoop(platform, controller, loop_cfg, mission.workers, mission.failsafe, aio,
                            obstacles=obstacles, perception=perception, progress=progress, workers=workers,
-                           sinks=sinks)
+                           sinks=sinks, guard=guard)
 
     def first_plan(state):
         if hasattr(controller, "ensure_plan"):
@@ -135,9 +138,13 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
 
     daemon = Daemon(platform, make_loop, first_plan=first_plan, workers=workers, closers=closers,
                     telemetry=telemetry, stop_after_s=stop_after_s)
-    if perception is not None:
-        perception.on_reject = lambda reason: daemon.loop and daemon.loop.event("perception_rejected",
-                                                                                 reason=reason[:200])
+    if perception is not None:      # drops and rejections, aggregated at most once a second per kind
+        def perception_event(kind: str, detail: dict) -> None:
+            if daemon.loop is not None:
+                daemon.loop.event(kind, **detail)
+            else:                   # before the control loop exists: the log only
+                log.info("event=%s %s", kind, " ".join(f"{k}={v}" for k, v in detail.items()))
+        perception.on_event = perception_event
     outcome = asyncio.run(daemon.run())
     return RunResult(outcome, recorder.path, mission)
 
@@ -156,9 +163,12 @@ def _open_telemetry(mission: Mission, platform, header: MissionHeader, closers: 
     telemetry.offer_header(header)
     perception = None
     if mission.telemetry.perception:
-        from vflpcd.daemon.perception import PerceptionInput
+        from vflpcd.daemon.perception import PerceptionInput, PerceptionLimits
 
-        perception = PerceptionInput(session, mission.vehicle_id, mission.scenario.dim,
-                                     mission.telemetry.perception_max_age_s)
-        closers.insert(len(closers) - 1, perception.close)
+        tc = mission.telemetry
+        limits = PerceptionLimits.around(mission.scenario.path, tc.perception_area_margin_m,
+                                         tc.perception_max_speed, tc.perception_max_radius)
+        perception = PerceptionInput(session, mission.vehicle_id, mission.scenario.dim, tc.perception_max_age_s,
+                                     limits, tc.perception_rate_hz)
+        closers.insert(closers.index(telemetry.close), perception.close)   # its last report goes out too
     return telemetry, perception

@@ -3,8 +3,10 @@
 For a ``can`` platform on a ``remote`` bus: python-can-remote's hub on the mission's port (unless
 one already answers there), then ``vflpcd sitl can-ecu MISSION``; on ``socketcan``: the ECU mock on
 the mission's channel. For a ``mavlink`` platform: ``vflpcd sitl quad`` sending to the mission's
-``udpin`` port. The mocks log to ``LOG_DIR/sitl-*.log``; at the end they get SIGTERM and their
-statistics line is printed. An ``inproc`` mission, or a ``virtual`` bus (one process only), has no
+``udpin`` port. The mocks log to ``LOG_DIR/sitl-*.log``; they run in their own process group, so
+a Ctrl-C in the terminal (SIGINT to the foreground group) reaches the daemon only: the daemon lands
+or stops the vehicle on the mock first. Only after the daemon has finished do they get SIGTERM, and
+their statistics line is printed. An ``inproc`` mission, or a ``virtual`` bus (one process only), has no
 mock to start: ConfigError naming the field.
 """
 
@@ -20,6 +22,7 @@ import time
 from pathlib import Path
 from urllib.parse import urlparse
 
+from vflpcd.daemon import lifeline
 from vflpcd.errors import ConfigError
 
 log = logging.getLogger("vflpcd.sitl")
@@ -73,7 +76,9 @@ class SitlProcesses:
         try:
             for name, argv, address in self.commands:
                 err = open(self.log_dir / f"sitl-{name}.log", "wb")
-                proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=err, stdin=subprocess.DEVNULL)
+                # out of the terminal's SIGINT, and killed with the daemon if it is killed itself
+                proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=err, stdin=subprocess.DEVNULL,
+                                        process_group=0, preexec_fn=lifeline.preexec())
                 err.close()
                 self.procs.append((name, proc))
                 print(f"started {name} (pid {proc.pid}): {' '.join(argv)}", flush=True)

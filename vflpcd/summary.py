@@ -33,6 +33,11 @@ def clearances(log: FlightLog, scenario) -> dict[str, float]:
     return out
 
 
+def touched_obstacles(clear: dict[str, float]) -> list[str]:
+    """The obstacles whose least clearance is contact (<= 0), from ``clearances``."""
+    return [oid for oid, gap in clear.items() if gap <= 0.0]
+
+
 def summary_lines(log: FlightLog, scenario, outcome=None) -> list[str]:
     """The summary as aligned ``label value`` lines."""
     period = 1.0 / log.header.rate_hz
@@ -59,10 +64,18 @@ def summary_lines(log: FlightLog, scenario, outcome=None) -> list[str]:
     if len(log):
         add("plans / GP models", f"{int(log.plan_version.max())} / {int(log.model_version.max())}")
     kinds = [e.kind for e in log.events]
-    for kind in ("failsafe", "replan_failed", "worker_error", "perception_rejected"):
+    brakes = [e for e in log.events if e.kind == "supervisor_brake"]
+    add("supervisor interventions", f"{len(brakes)}" + (f" (first at t={brakes[0].t:.2f} s: "
+                                                         f"{brakes[0].detail.get('reason', '')})" if brakes else "")[:160])
+    for kind in ("failsafe", "replan_failed", "worker_error"):
         if kind in kinds:
             first = next(e for e in log.events if e.kind == kind)
             add(kind, f"{kinds.count(kind)} (first at t={first.t:.2f} s: {first.detail.get('reason', '')})"[:160])
+    for kind, what in (("perception_rejected", "reason"), ("perception_dropped", "budget_hz")):
+        reports = [e for e in log.events if e.kind == kind]     # aggregated: the last one has the total
+        if reports:
+            last = reports[-1].detail
+            add(kind, f"{last.get('total', len(reports))} messages ({what} {last.get(what, '')})"[:160])
     link = next((e.detail for e in log.events if e.kind == "link_stats"), None)
     if link:
         add("platform link", ", ".join(f"{k} {v}" for k, v in link.items())[:200])
@@ -70,7 +83,8 @@ def summary_lines(log: FlightLog, scenario, outcome=None) -> list[str]:
     if clear:
         worst = min(clear, key=clear.get)
         add("min clearance", f"{clear[worst]:.2f} m ({worst})")
-        add("collisions", f"{sum(1 for v in clear.values() if v <= 0.0)} obstacles touched")
+        touched = touched_obstacles(clear)
+        add("collisions", f"{len(touched)} obstacles touched" + (f" ({', '.join(touched)})" if touched else ""))
     if log.truncated:
         add("log", "truncated (the writer was killed)")
     add("log file", str(log.path))

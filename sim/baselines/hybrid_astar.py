@@ -79,7 +79,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from sim.footprint import Footprint
+from vflpcd.core.footprint import Footprint
 from vflpcd.core.angles import wrap_angle
 from vflpcd.paths import config_dir
 from vflpcd.tomlread import Table, load_toml

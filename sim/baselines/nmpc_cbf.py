@@ -101,7 +101,7 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-from sim.footprint import Footprint
+from vflpcd.core.footprint import Footprint
 from sim.plants.dynamic_bicycle import BicycleConfig, BicycleParams
 from vflpcd.core.angles import wrap_angle
 from vflpcd.core.obstacles import ObstacleState

@@ -10,7 +10,8 @@ controller's ``step``; replans and GP refits are worker work, timed apart as t_b
 3. ``uav_3d``: VF-LPC, the Koopman-MPC and the PD tracker.
 
 Columns: J_MC, L_p, t_com, t_cal median and p99, collisions, minimum clearance of the exact
-body, peak lateral acceleration, fallbacks, and the longest background job. Below the tables
+body, peak lateral acceleration, fallbacks, the longest background job, and the safety
+supervisor's interventions and median cost per tick (every controller runs behind it). Below the tables
 the acceptance figures are printed: VF-LPC's t_cal against 1 ms (median) and 3 ms (p99), its
 speed-up over the NMPC and the Koopman-MPC, and its J_MC against the NMPC's. JSON and a PNG
 (trajectories around the obstacles, t_cal distributions, lateral error w/ and w/o ML) go to --out.
@@ -71,7 +72,8 @@ def _fmt(v, scale: float = 1.0, digits: int = 3) -> str:
 
 def table(title: str, runs: list[Run]) -> str:
     head = (f"{'controller':<20} {'outcome':<10} {'J_MC':>7} {'L_p m':>7} {'t_com s':>8} {'t_cal med ms':>13} "
-            f"{'p99 ms':>8} {'coll':>5} {'clear m':>8} {'a_lat max':>10} {'fallb':>6} {'bg max s':>9}")
+            f"{'p99 ms':>8} {'coll':>5} {'clear m':>8} {'a_lat max':>10} {'fallb':>6} {'bg max s':>9} {'interv':>6} "
+            f"{'sup med us':>10}")
     lines = [title, head, "-" * len(head)]
     for r in runs:
         m = r.metrics
@@ -79,7 +81,8 @@ def table(title: str, runs: list[Run]) -> str:
                      f"{_fmt(m['t_com'], digits=4):>8} {_fmt(m['t_cal_median'], 1e3):>13} "
                      f"{_fmt(m['t_cal_p99'], 1e3):>8} {m['collisions']:>5} {_fmt(m['min_clearance']):>8} "
                      f"{_fmt(m['peak_lateral_acceleration']):>10} {m.get('fallbacks', '-'):>6} "
-                     f"{_fmt(m['t_background_max']):>9}")
+                     f"{_fmt(m['t_background_max']):>9} {m['interventions']:>6} "
+                     f"{m['t_sup_median'] * 1e6:>10.0f}")
     return "\n".join(lines)
 
 

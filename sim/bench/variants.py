@@ -71,7 +71,8 @@ def run_variant(seed: int, folder: Path) -> dict:
             "closest": scenario.obstacles[worst].id, "t_closest": float(record.t[k]),
             "speed_closest": float(np.linalg.norm(record.velocity[k])), "t_com": m["t_com"],
             "t_cal_median": m["t_cal_median"], "t_cal_p99": m["t_cal_p99"], "fallbacks": controller.fallbacks,
-            "replan_failures": controller.replan_failures}
+            "replan_failures": controller.replan_failures, "interventions": m["interventions"],
+            "failsafe": m["failsafe"]}
 
 
 def bench_variants(out: Path, n: int = 50, first_seed: int = 0) -> dict:
@@ -81,18 +82,21 @@ def bench_variants(out: Path, n: int = 50, first_seed: int = 0) -> dict:
     logging.getLogger("vflpcd.core.vflpc").setLevel(logging.ERROR)  # replan failures are counted per run
     rows = []
     print(f"{'seed':>4} {'outcome':<10} {'coll':>4} {'clear m':>8} {'closest':<11} {'at t s':>7} {'speed':>6} "
-          f"{'t_cal med ms':>12} {'p99 ms':>7} {'replan fails':>12}")
+          f"{'t_cal med ms':>12} {'p99 ms':>7} {'replan fails':>12} {'interv':>6}")
     for seed in range(first_seed, first_seed + n):
         r = run_variant(seed, folder)
         rows.append(r)
         print(f"{seed:>4} {r['outcome']:<10} {r['collisions']:>4} {r['min_clearance']:>8.2f} {r['closest']:<11} "
               f"{r['t_closest']:>7.2f} {r['speed_closest']:>6.2f} {r['t_cal_median'] * 1e3:>12.3f} "
-              f"{r['t_cal_p99'] * 1e3:>7.3f} {r['replan_failures']:>12}", flush=True)
+              f"{r['t_cal_p99'] * 1e3:>7.3f} {r['replan_failures']:>12} {r['interventions']:>6}"
+              + (f"  {r['failsafe']}" if r["failsafe"] else ""), flush=True)
     safe = sum(r["collisions"] == 0 for r in rows)
     done = sum(r["outcome"] == "completed" for r in rows)
     summary = {"variants": n, "without_collision": safe, "completed": done,
+               "interventions": sum(r["interventions"] for r in rows),
                "seeds_with_collision": [r["seed"] for r in rows if r["collisions"]]}
-    print(f"\n{safe}/{n} variants without collision, {done}/{n} completed; "
+    print(f"\n{safe}/{n} variants without collision, {done}/{n} completed, "
+          f"{summary['interventions']} supervisor interventions; "
           f"collisions in seeds {summary['seeds_with_collision'] or 'none'}")
     (out / "bench_variants.json").write_text(json.dumps({"summary": summary, "runs": rows}, indent=2,
                                                         default=float) + "\n")

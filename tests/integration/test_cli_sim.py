@@ -9,20 +9,33 @@ from pathlib import Path
 VFLPCD = [sys.executable, "-m", "vflpcd.cli"]
 
 
-def test_sim_carsim_avoidance_pure_pursuit(tmp_path):
+def test_sim_carsim_avoidance_pure_pursuit_stops_behind_the_supervisor(tmp_path):
+    # pure pursuit does not avoid anything: the supervisor stops it in front of the parked car
     out = tmp_path / "run"
     proc = subprocess.run(VFLPCD + ["sim", "carsim_avoidance", "--controller", "pure_pursuit", "--out", str(out)],
                           capture_output=True, text=True, timeout=300, env={**os.environ, "MPLBACKEND": "Agg"})
-    assert proc.returncode == 0, proc.stderr
-    for label in ("J_MC", "L_p", "t_com", "t_cal median / p99", "min clearance", "collisions"):
+    assert proc.returncode == 3, proc.stderr
+    for label in ("J_MC", "L_p", "t_com", "t_cal median / p99", "min clearance", "collisions",
+                  "supervisor interventions"):
         assert label in proc.stdout
     doc = json.loads((out / "results.json").read_text())
     assert doc["scenario"] == "carsim_avoidance" and doc["controller"] == "pure_pursuit"
     m = doc["metrics"]
-    assert m["outcome"] == "completed" and 240.0 < m["L_p"] < 260.0
+    assert m["outcome"] == "stopped" and m["collisions"] == 0 and m["interventions"] >= 1
+    assert "parked_car" in m["failsafe"] and 0.0 < m["min_clearance"] < 1.5
     assert len(m["min_clearance_per_obstacle"]) == 5
     png = (out / "plot.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 50_000
+
+
+def test_sim_without_the_supervisor_reports_the_collision_and_exits_5(tmp_path):
+    out = tmp_path / "bare"
+    proc = subprocess.run(VFLPCD + ["sim", "carsim_avoidance", "--controller", "pure_pursuit", "--no-supervisor",
+                                    "--no-plot", "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 5, proc.stderr
+    m = json.loads((out / "results.json").read_text())["metrics"]
+    assert m["outcome"] == "collision" and m["collisions"] >= 1 and 240.0 < m["L_p"] < 260.0
+    assert "first at 6.94 m/s" in proc.stdout
 
 
 def test_bad_scenario_file_exits_2_in_one_line(tmp_path):

@@ -18,7 +18,7 @@ from processes import Proc  # noqa: E402
 LOITER, LAND = (3 << 24) | (4 << 16), (6 << 24) | (4 << 16)
 
 
-def quad_mission(folder: Path, port: int, *, hold: float = 15.0) -> Path:
+def quad_mission(folder: Path, port: int, *, hold: float = 3.0) -> Path:
     path = folder / "quad_sitl.toml"
     path.write_text(f"""vehicle_id = "quad1"
 [platform]
@@ -71,10 +71,14 @@ def test_quadrotor_mission_through_mavsdk_takes_off_flies_the_course_and_lands(t
         autopilot.stop()
     out = "\n".join(daemon.out)
     assert "mission_complete (exit code 0)" in out and "0 obstacles touched" in out, out
-    for step in ("event=takeoff", "event=offboard_started", "action=hold_then_land", "mode=LAND"):
+    for step in ("event=takeoff", "event=offboard_started", "action=hold_then_land", "mode=LAND",
+                 "event=land_commanded", "event=at_rest"):
         daemon.wait_line(step, 0.1)
-    stats = sitl_stats(autopilot)
-    assert stats["landed_state"] == 1 and stats["offboard_losses"] == 0
+    # the landing outlasts failsafe.hold (3 s): the daemon waited for it, not for the hold
+    complete, rest = daemon.wait_line("event=mission_complete", 0.1), daemon.wait_line("event=at_rest", 0.1)
+    assert rest - complete > 3.0 + 1.0
+    stats = sitl_stats(autopilot)                      # stopped after the daemon exited
+    assert stats["landed_state"] == 1 and stats["armed"] is False and stats["offboard_losses"] == 0
     assert stats["rejected_setpoints"] == 0 and stats["malformed"] == 0 and stats["setpoints"] > 1500
 
 

@@ -33,6 +33,25 @@ class Controller(Protocol):
              obstacles: Sequence[ObstacleState] = ()) -> np.ndarray: ...
 
 
+@runtime_checkable
+class PlanningController(Protocol):
+    """A controller that follows a plan of its own (VF-LPC), which the safety monitors check:
+    ``current_plan`` (with ``kappa`` (K,) and ``v`` (K,): the path's curvature and speed plan; None
+    before the first), ``reference_at(t)`` (the reference position (d,) or None), and the counts of
+    installed (``replans``) and failed (``replan_failures``) replans. ``plan_gate``: None, or a
+    callable plan -> reason that the controller asks before it installs a replan; a reason refuses
+    it (the previous plan stays, the refusal counts as a failed replan)."""
+
+    replans: int
+    replan_failures: int
+    plan_gate: object
+
+    @property
+    def current_plan(self): ...
+
+    def reference_at(self, t: float) -> np.ndarray | None: ...
+
+
 @dataclass(frozen=True)
 class StampedState:
     """A platform state with the monotonic time (ns) at which it was measured."""

@@ -234,6 +234,7 @@ class VFLPC:
                                 params.nu, params.ell_factor, params.seed, u_std)
             solver = EbRHRL(A, B, Q, R, P, em.gamma, feats, self.N, params.eta_a, params.i_max, params.tol)
         self.solver, self.compensator = solver, compensator
+        self.plan_gate = None          # set by the safety guard (vflpcd.core.safety): refuses undrivable replans
         self.body_radius, self.safety_margin = float(body_radius), float(safety_margin)
         self.reset()
 
@@ -249,6 +250,7 @@ class VFLPC:
         self._last: tuple[TickFrame, np.ndarray] | None = None
         self._since_refit = 0
         self._pending: ReplanJob | None = None
+        self._asked: tuple[ReplanJob, dict[str, np.ndarray], int] | None = None
         self._last_inputs = None
         self.fallbacks = 0
         self.replans = 0
@@ -300,6 +302,11 @@ class VFLPC:
         return self._plan.trajectory.sample(np.array([t]))["pos"][0]
 
     @property
+    def current_plan(self):
+        """The plan being followed (a ``GuidancePlan``), None before the first."""
+        return self._plan
+
+    @property
     def plan_version(self) -> int:
         return self.replans
 
@@ -331,9 +338,17 @@ class VFLPC:
         return job
 
     def install_plan(self, job: ReplanJob, result: PlanResult) -> None:
-        """Take a finished replan (between two ticks); the next step uses it."""
+        """Take a finished replan (between two ticks); the next step uses it. A replan that
+        ``plan_gate`` refuses is a failed one (the previous plan stays)."""
+        if self.plan_gate is not None and self._plan is not None:
+            refused = self.plan_gate(result.plan)
+            if refused is not None:
+                self.replan_failed(job, f"refused: {refused}")
+                return
         self._plan, self._ends_path = result.plan, result.ends_path
         self._signature = {o.id: o.velocity for o in job.obstacles}
+        if self._asked is not None and self._asked[0] is job:
+            self._asked = None              # the newest picture asked for is the one now planned
         self.replans += 1
 
     def replan_failed(self, job: ReplanJob, reason: str) -> None:
@@ -384,10 +399,18 @@ class VFLPC:
         return state[[names.index(n) for n in ("vx", "vy", "vz")[: self.dim]]]
 
     def _changed(self, obstacles: Sequence[ObstacleState]) -> bool:
+        """Whether the obstacle picture differs (an obstacle appeared or went, or its velocity changed
+        by more than velocity_change) from the newest one a replan was asked for: the job pending or
+        being planned, else the installed plan's. So a replan is asked once per change, not once per
+        tick while the worker plans it; an asked replan that has failed since (``replan_failures``
+        grew) counts as not asked, and is asked again."""
+        ref = self._signature
+        if self._asked is not None and self._asked[2] == self.replan_failures:
+            ref = self._asked[1]
         sig = {o.id: o.velocity for o in obstacles}
-        if sig.keys() != self._signature.keys():
+        if sig.keys() != ref.keys():
             return True
-        return any(np.linalg.norm(sig[k] - self._signature[k]) > self.params.velocity_change for k in sig)
+        return any(np.linalg.norm(sig[k] - ref[k]) > self.params.velocity_change for k in sig)
 
     def _guidance(self, pos, vel, state, t: float, obstacles) -> None:
         """Replan now if there is no reference yet, else leave a due replan to ``background``."""
@@ -403,7 +426,8 @@ class VFLPC:
         if plan is None:
             self.install_plan(job, plan_job(self.planner, job))   # no reference yet: plan at once
         else:
-            self._pending = job
+            self._pending = job                                    # the newest replaces any older one
+            self._asked = (job, {o.id: o.velocity for o in obstacles}, self.replan_failures)
 
     def _reference(self, t: float) -> np.ndarray:
         """World reference states (N + 1, n_x) at t + tau dt, in the model's state order."""

@@ -42,10 +42,21 @@ class FailsafePolicy:
     ticks whose work ran past the next deadline; stall: seconds without a finished tick (the health
     monitor, outside the tick thread, notices a hung step); connect_timeout: seconds to connect
     and receive the first state; hold: seconds the safe action is held before the daemon exits
-    (exit code 3 after a failsafe, 0 after a completed mission)."""
+    (exit code 3 after a failsafe, 0 after a completed mission).
+
+    Before it exits, the daemon waits until the vehicle is at rest: land_timeout: seconds, from
+    the start of the safe action, for a quadrotor to land (the autopilot reports it on the ground
+    and disarmed; the safe action's hold comes first); brake_timeout: seconds for a ground
+    vehicle to brake to a standstill. Not at rest in time: exit code 4."""
 
     state_max_age: float = 0.2
     overrun_streak: int = 5
     stall: float = 0.5
     connect_timeout: float = 30.0
     hold: float = 3.0
+    land_timeout: float = 60.0
+    brake_timeout: float = 10.0
+
+    def rest_timeout(self, aerial: bool) -> tuple[str, float]:
+        """The setting that bounds the wait for rest, and its value (s)."""
+        return ("land_timeout", self.land_timeout) if aerial else ("brake_timeout", self.brake_timeout)

@@ -4,7 +4,10 @@ Every tick (``_tick``):
 1. finished worker jobs are installed in the controller (a plan or a GP model, taken whole);
 2. the platform's latest state is checked (link, age, finiteness: ``FailsafeMonitor``);
 3. while running: the mission's and the perceived obstacles, ``controller.step`` (timed: compute),
-   the command checked and handed to the platform on the asyncio loop (never awaited here);
+   the command checked, passed through the safety guard (``vflpcd.core.safety``: the supervisor's
+   collision check, which may replace it with the emergency manoeuvre, and the monitors of the plan,
+   the tracking and the vehicle's response, any of which may trip the failsafe) and handed to the
+   platform on the asyncio loop (never awaited here);
 4. the tick is recorded (flight log) and offered to telemetry (both non-blocking);
 5. progress along the path: at the goal the vehicle is brought to rest (mission complete);
 6. overrun accounting (the tick's work ran past the next deadline), due worker jobs submitted,
@@ -29,6 +32,7 @@ import numpy as np
 
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.safety.guard import SafetyGuard
 from vflpcd.daemon.config import FailsafePolicy, LoopConfig, WorkerConfig
 from vflpcd.daemon.failsafe import FailsafeMonitor
 from vflpcd.daemon.progress import Progress
@@ -62,6 +66,8 @@ class Counters:
     lateness: TimingStats = field(default_factory=TimingStats)
     compute: TimingStats = field(default_factory=TimingStats)
     work: TimingStats = field(default_factory=TimingStats)
+    supervise: TimingStats = field(default_factory=TimingStats)
+    overrides: int = 0
 
 
 class ControlLoop:
@@ -69,19 +75,20 @@ class ControlLoop:
 
     ``obstacles(t, state)``: the mission's obstacles at mission time t (list of ObstacleState);
     ``perception``: an object with ``snapshot(now_unix, t)`` or None; ``progress``: the path goal
-    or None (then the mission runs until stopped); ``position_index``: the state entries of the
-    position (for the obstacle records).
+    or None (then the mission runs until stopped); ``guard``: the safety guard every command passes
+    (``vflpcd.safety.guard_for``), or None.
     """
 
     def __init__(self, platform, controller, loop: LoopConfig, workers_cfg: WorkerConfig,
                  policy: FailsafePolicy, aio: asyncio.AbstractEventLoop, *,
                  obstacles: Callable[[float, np.ndarray], Sequence[ObstacleState]] = lambda t, x: (),
                  perception=None, progress: Progress | None = None, workers: Workers | None = None,
-                 sinks: Sinks | None = None) -> None:
+                 sinks: Sinks | None = None, guard: SafetyGuard | None = None) -> None:
         self.platform, self.controller, self.cfg, self.wcfg = platform, controller, loop, workers_cfg
         self.aio = aio
         self.obstacles, self.perception, self.progress, self.workers = obstacles, perception, progress, workers
         self.sinks = sinks or Sinks()
+        self.guard = guard
         self.n_u = len(platform.control_names)
         self.monitor = FailsafeMonitor(policy, len(platform.state_names))
         self.policy = policy
@@ -163,6 +170,8 @@ class ControlLoop:
                 reason = f"controller_error: {type(exc).__name__}: {exc}"
             compute = (time.perf_counter_ns() - c0) * 1e-9
             c.compute.add(compute)
+            if reason is None and self.guard is not None:
+                u, reason = self._supervise(t, state, u, obstacles)
             if reason is None:
                 self._send(u)
                 command = tuple(u.tolist())
@@ -185,6 +194,20 @@ class ControlLoop:
         self.last_tick_ns = time.monotonic_ns()
         if self.gc is not None:
             self.gc.between_ticks(tick.deadline_ns + self.rate.period_ns - self.last_tick_ns)
+
+    def _supervise(self, t: float, state: np.ndarray, u: np.ndarray, obstacles) -> tuple[np.ndarray, str | None]:
+        """The guard's command for this tick and a failsafe reason (or None); interventions are events."""
+        s0 = time.perf_counter_ns()
+        route_error = self.progress.lateral if self.progress is not None else float("nan")
+        gs = self.guard.step(t, state, u, obstacles, self.controller, route_error=route_error)
+        self.counters.supervise.add((time.perf_counter_ns() - s0) * 1e-9)
+        v = gs.verdict
+        self.counters.overrides += v.override
+        if v.engaged:
+            self.event("supervisor_brake", reason=v.reason, obstacle=v.nearest, clearance_m=round(v.clearance, 3))
+        elif v.released:
+            self.event("supervisor_release", obstacle=v.nearest, clearance_m=round(v.clearance, 3))
+        return gs.command, gs.trip
 
     def _send(self, u: np.ndarray) -> None:
         future = asyncio.run_coroutine_threadsafe(self.platform.send(u), self.aio)
@@ -241,7 +264,8 @@ class ControlLoop:
     def event(self, kind: str, **detail) -> None:
         now = time.monotonic_ns()
         ev = Event(t=self.mission_time(now), stamp_ns=now, kind=kind, detail=detail)
-        log.log(logging.WARNING if kind in ("failsafe", "worker_error", "replan_failed") else logging.INFO,
+        log.log(logging.WARNING if kind in ("failsafe", "worker_error", "replan_failed", "supervisor_brake")
+                else logging.INFO,
                 "event=%s t=%.3f %s", kind, ev.t, " ".join(f"{k}={v}" for k, v in detail.items()))
         if self.sinks.recorder is not None:
             self.sinks.recorder.record_event(ev)

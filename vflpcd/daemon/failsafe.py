@@ -10,10 +10,11 @@ from __future__ import annotations
 import numpy as np
 
 from vflpcd.core.ports import StampedState
+from vflpcd.core.safety.monitors import REASONS as MONITOR_REASONS
 from vflpcd.daemon.config import FailsafePolicy
 
 REASONS = ("link_lost", "no_state", "stale_state", "nonfinite_state", "controller_error", "nonfinite_command",
-           "overrun_streak", "stall")
+           "overrun_streak", "stall", "collision") + MONITOR_REASONS    # the last two: vflpcd.core.safety
 
 
 class FailsafeMonitor:

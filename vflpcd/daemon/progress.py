@@ -15,10 +15,12 @@ class Progress:
         self.path, self.goal, self.index = path, float(goal), list(position_index)
         self._s: float | None = None
         self.covered = 0.0
+        self.lateral = float("nan")     # distance to the path at the last update (m)
 
     def update(self, state: np.ndarray) -> bool:
         """Advance with a new state (n_x,); True once the goal is reached."""
-        s = self.path.project(np.asarray(state)[self.index], self._s).s
+        proj = self.path.project(np.asarray(state)[self.index], self._s)
+        s, self.lateral = proj.s, abs(float(proj.lateral))
         if self._s is not None:
             self.covered += progress_delta(self.path, s, self._s)
         self._s = s

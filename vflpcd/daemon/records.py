@@ -116,7 +116,10 @@ EVENT_KINDS = (
     "failsafe",           # detail: reason, action
     "replan_failed",      # detail: reason
     "worker_error",       # detail: job, reason
-    "perception_rejected",  # detail: reason
+    "perception_rejected",  # detail: count, total, reason (aggregated, at most once a second)
+    "perception_dropped",   # detail: count, total, budget_hz (over the message budget; at most once a second)
+    "supervisor_brake",   # the safety supervisor overrode the command (detail: reason, obstacle, clearance_m)
+    "supervisor_release",  # ... and handed it back (detail: obstacle, clearance_m)
     "mission_complete",   # detail: progress_m
     "stopping",           # detail: reason (signal name, mission_complete, failsafe)
     "link_stats",         # the platform link's counters at the end (frames, bad frames by kind, setpoints, ...)

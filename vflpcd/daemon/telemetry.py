@@ -38,6 +38,7 @@ PUBLISHED_TOPICS = TICK_TOPICS + ("health", "events")
 MODES = ("peer", "client")
 PROTOCOLS = ("tcp", "udp", "quic", "tls")
 MAX_RATE_HZ = 200.0
+MAX_PERCEPTION_RADIUS_M = 100.0
 EVENT_QUEUE_MAX = 1000
 JSON = zenoh.Encoding.APPLICATION_JSON
 
@@ -97,7 +98,11 @@ class TelemetryConfig:
     (an empty ``listen`` opens no port); multicast_scouting: Zenoh's UDP multicast discovery;
     rate_hz: state/command/reference/obstacles/timing rate (Hz, (0, 200]); health_rate_hz: health
     rate (Hz, (0, 200]); perception: subscribe the perception input; perception_max_age_s: older
-    perception messages are ignored (s).
+    perception messages are ignored (s); perception_area_margin_m: perceived centres must lie in
+    the route's bounding box grown by this (m, >= 0); perception_max_speed: largest perceived
+    speed (m/s, > 0); perception_max_radius: perceived radii must be below this (m, (0, 100]);
+    perception_rate_hz: perception message budget (messages a second, (0, 200]; more are dropped
+    unparsed).
     """
 
     enabled: bool = True
@@ -109,12 +114,17 @@ class TelemetryConfig:
     health_rate_hz: float = 1.0
     perception: bool = False
     perception_max_age_s: float = 0.5
+    perception_area_margin_m: float = 50.0
+    perception_max_speed: float = 40.0
+    perception_max_radius: float = 10.0
+    perception_rate_hz: float = 50.0
 
     @classmethod
     def from_table(cls, table: Table) -> TelemetryConfig:
         """Validate a ``[telemetry]`` table (all keys optional); raises ConfigError naming the field."""
         table.check_known({"enabled", "mode", "connect", "listen", "multicast_scouting", "rate_hz",
-                           "health_rate_hz", "perception", "perception_max_age_s"})
+                           "health_rate_hz", "perception", "perception_max_age_s", "perception_area_margin_m",
+                           "perception_max_speed", "perception_max_radius", "perception_rate_hz"})
         d = cls()
         cfg = cls(enabled=table.boolean("enabled", d.enabled),
                   mode=table.string("mode", d.mode, choices=MODES),
@@ -124,7 +134,14 @@ class TelemetryConfig:
                   rate_hz=table.number("rate_hz", d.rate_hz, positive=True, max=MAX_RATE_HZ),
                   health_rate_hz=table.number("health_rate_hz", d.health_rate_hz, positive=True, max=MAX_RATE_HZ),
                   perception=table.boolean("perception", d.perception),
-                  perception_max_age_s=table.number("perception_max_age_s", d.perception_max_age_s, positive=True))
+                  perception_max_age_s=table.number("perception_max_age_s", d.perception_max_age_s, positive=True),
+                  perception_area_margin_m=table.number("perception_area_margin_m", d.perception_area_margin_m,
+                                                        min=0.0),
+                  perception_max_speed=table.number("perception_max_speed", d.perception_max_speed, positive=True),
+                  perception_max_radius=table.number("perception_max_radius", d.perception_max_radius,
+                                                     positive=True, max=MAX_PERCEPTION_RADIUS_M),
+                  perception_rate_hz=table.number("perception_rate_hz", d.perception_rate_hz, positive=True,
+                                                  max=MAX_RATE_HZ))
         if cfg.enabled and cfg.mode == "client" and not cfg.connect and not cfg.multicast_scouting:
             raise table.error("connect", "client mode needs at least one endpoint to connect to "
                                          "(or multicast_scouting = true)")

@@ -9,7 +9,7 @@ import pytest
 from sim.baselines.hybrid_astar import (
     DUBINS_WORDS, HybridAStarParams, dubins_paths, dubins_shortest, plan_hybrid_astar, plan_scenario,
 )
-from sim.footprint import Footprint
+from vflpcd.core.footprint import Footprint
 from sim.plants.dynamic_bicycle import BicycleConfig
 from sim.scenarios import load_scenario
 from vflpcd.core.angles import wrap_angle

@@ -26,11 +26,12 @@ def corridor(line_scenario):
     return line_scenario("corridor", length=30.0, speed=3.0, a_lat_max=2.0, t_max=30.0, obstacles=CORRIDOR_OBSTACLES)
 
 
-def test_pure_pursuit_on_a_corridor_hits_the_block_and_reports_it(line_scenario):
+def test_without_the_supervisor_pure_pursuit_hits_the_block_and_the_outcome_says_collision(line_scenario):
     s = corridor(line_scenario)
-    rec = run_closed_loop(s, make_controller("pure_pursuit", s))
+    rec = run_closed_loop(s, make_controller("pure_pursuit", s), supervised=False)
     m = rec.metrics
-    assert rec.outcome == "completed"
+    assert rec.outcome == "collision" and m["outcome"] == "collision"      # it reached the goal, through the block
+    assert m["impact_speed"] == pytest.approx(3.0, abs=0.05) and m["interventions"] == 0
     assert m["t_com"] == pytest.approx(29.0 / 3.0, abs=0.06)        # constant 3 m/s to the finish line
     assert m["L_p"] == pytest.approx(29.0, abs=0.2)
     assert m["collisions"] == 1                                       # drives straight through the block
@@ -40,6 +41,39 @@ def test_pure_pursuit_on_a_corridor_hits_the_block_and_reports_it(line_scenario)
     assert m["min_clearance_per_obstacle"][1] == pytest.approx(4.0 - 0.5 - 0.95, abs=0.01)
     assert m["rms_lateral_error"] < 1e-9 and m["J_MC"] < 1e-6
     assert rec.t_cal.shape == rec.t.shape and np.all(rec.t_cal > 0)
+
+
+def test_behind_the_supervisor_pure_pursuit_stops_before_the_block(line_scenario):
+    s = corridor(line_scenario)
+    rec = run_closed_loop(s, make_controller("pure_pursuit", s))
+    m = rec.metrics
+    assert rec.outcome == "stopped" and rec.failsafe.startswith("blocked: held at rest by the safety supervisor")
+    assert m["collisions"] == 0 and m["impact_speed"] is None and m["interventions"] >= 1
+    gap = m["min_clearance_per_obstacle"][0]
+    assert 0.0 < gap < 1.5                                                 # in front of it, not far from it
+    assert np.linalg.norm(rec.velocity[-1]) < 0.05
+    assert np.all(rec.sent[rec.override > 0, 0] == -6.0)                   # overrides brake fully
+    assert 0 < m["t_sup_median"] < 0.01
+
+
+class RaisingController:
+    name = "raising"
+
+    def reset(self):
+        pass
+
+    def step(self, state, t, obstacles=()):
+        if t >= 1.0:
+            raise RuntimeError("broken")
+        return np.zeros(2)
+
+
+def test_a_controller_that_raises_is_a_failsafe_that_brakes_to_rest(line_scenario):
+    rec = run_closed_loop(corridor(line_scenario), RaisingController())
+    assert rec.outcome == "failsafe" and rec.failsafe == "controller_error: RuntimeError: broken"
+    assert np.linalg.norm(rec.velocity[-1]) < 0.05 and rec.t[-1] < 1.0 + 3.0 / 6.0 + 1.0
+    with pytest.raises(RuntimeError):
+        run_closed_loop(corridor(line_scenario), RaisingController(), supervised=False)
 
 
 class NaNController:
@@ -59,13 +93,15 @@ def test_a_non_finite_command_ends_the_run_as_diverged(line_scenario):
     assert np.all(np.isfinite(rec.state))
 
 
-def test_pd_tracker_flies_the_uav_path():
+def test_pd_tracker_flies_the_uav_path_into_obstacles_without_the_supervisor_and_stops_behind_it():
     s = load_scenario("uav_3d")
-    rec = run_closed_loop(s, make_controller("pd_tracker", s))
-    assert rec.outcome == "completed"
+    rec = run_closed_loop(s, make_controller("pd_tracker", s), supervised=False)
+    assert rec.outcome == "collision"
     assert rec.metrics["rms_lateral_error"] < 0.1
     # it does not avoid anything, so it flies into obstacles on the path: the count must say so
     assert rec.metrics["collisions"] >= 1
+    rec = run_closed_loop(s, make_controller("pd_tracker", s))
+    assert rec.metrics["collisions"] == 0 and rec.outcome == "stopped" and rec.metrics["interventions"] >= 1
 
 
 def test_racing_track_lap_with_process_noise_is_seeded():
@@ -80,7 +116,7 @@ def test_racing_track_lap_with_process_noise_is_seeded():
 
 
 def test_footprint_clearance_is_exact_for_a_rectangle():
-    from sim.footprint import Footprint
+    from vflpcd.core.footprint import Footprint
     from vflpcd.core.shapes import Box, Circle
 
     fp = Footprint.rectangle(4.0, 2.0, 1.0)  # body x in [-1, 3], y in [-1, 1]

@@ -36,7 +36,7 @@ def test_key_settings():
     assert s["ExecStart"] == [f"{EXEC} run /etc/vflpcd/missions/%i.toml"]
     assert s["Type"] == ["notify"] and s["NotifyAccess"] == ["main"]
     assert s["WatchdogSec"] == ["2s"] and s["Restart"] == ["on-failure"]
-    assert s["RestartPreventExitStatus"] == ["2 3"]
+    assert s["RestartPreventExitStatus"] == ["2 3 4 5"]
     assert s["CapabilityBoundingSet"] == [""]
     assert s["RestrictRealtime"] == ["no"] and s["LimitRTPRIO"] == ["50"]
     assert set(s["RestrictAddressFamilies"][0].split()) == {"AF_UNIX", "AF_INET", "AF_INET6", "AF_CAN",

@@ -1,0 +1,120 @@
+"""The safety layer in the real daemon (in this process, in-process vehicle): each monitor's
+trigger ends in the failsafe with the vehicle at rest and the event logged, and a collision is
+exit code 5, never a success."""
+
+import json
+import threading
+import time
+
+import numpy as np
+
+from loopback import zenoh_peer
+from sim.scenarios import line_scenario_toml
+from vflpcd.drill import Drill
+from vflpcd.flightlog import read_flight_log
+from vflpcd.mission import load_mission
+from vflpcd.run import run_mission
+
+RATE = 20.0
+KEY = "vflpc/t1/perception/obstacles"
+
+
+def failsafe_events(result):
+    return [e for e in read_flight_log(result.log_path).events if e.kind == "failsafe"]
+
+
+def assert_failsafe(result, kind, code=3):
+    outcome, platform = result.outcome, result.outcome.loop.platform
+    assert outcome.code == code, outcome.reason
+    assert outcome.reason.startswith(kind), outcome.reason
+    assert platform.failsafe_reason.startswith(kind)
+    assert platform.at_rest                                    # braked to a standstill
+    events = failsafe_events(result)
+    assert len(events) == 1 and events[0].detail["reason"].startswith(kind)
+    assert events[0].detail["action"] == "brake_to_stop"
+    return events[0]
+
+
+def test_a_plan_the_car_cannot_drive_stops_it(mission_file):
+    # nine posts in a walled corridor: the guidance's plan turns tighter than the steering can
+    result = run_mission(load_mission(mission_file(route="safety/dense_corridor", rate_hz=RATE, hold=0.5)))
+    event = assert_failsafe(result, "undrivable_plan")
+    assert "beyond the steering limit 0.174 1/m" in event.detail["reason"]
+    assert "no valid plan for 2.0 s" in event.detail["reason"]
+
+
+def test_replans_that_keep_failing_stop_the_car(mission_file, tmp_path):
+    # an obstacle appears over the goal: no replan can reach it any more
+    goal = """
+[[obstacles]]
+id = "over_the_goal"
+shape = "circle"
+radius = 3.0
+center = [60.0, 0.0]
+trigger = "appear"
+trigger_distance = 45.0
+"""
+    (tmp_path / "goal.toml").write_text(line_scenario_toml("goal", length=60.0, speed=5.0, obstacles=goal))
+    result = run_mission(load_mission(mission_file(route="goal.toml", rate_hz=RATE, hold=0.5)))
+    event = assert_failsafe(result, "no_plan")
+    log = read_flight_log(result.log_path)
+    failed = [e for e in log.events if e.kind == "replan_failed"]
+    assert failed and "covers the goal" in failed[0].detail["reason"]
+    assert 2.0 <= event.t - failed[0].t <= 2.0 + 3 / RATE     # plan_timeout after the first failure
+
+
+def test_a_car_that_steers_off_its_path_stops(mission_file):
+    result = run_mission(load_mission(mission_file(rate_hz=RATE, hold=0.5)), drill=Drill("veer", 2.0))
+    event = assert_failsafe(result, "tracking_error")
+    assert 2.0 < event.t < 8.0
+
+
+def test_a_car_that_does_not_follow_its_commands_stops(mission_file):
+    result = run_mission(load_mission(mission_file(rate_hz=RATE, hold=0.5)), drill=Drill("stuck", 2.0))
+    event = assert_failsafe(result, "unresponsive")
+    assert "measured acceleration" in event.detail["reason"]
+    assert 2.0 < event.t < 2.0 + 1.0 + 0.5                      # one response window after the fault
+
+
+def test_a_collision_is_exit_code_5_and_the_supervisor_braked_first(mission_file):
+    # a pedestrian steps out inside the stopping distance: the supervisor brakes, contact follows
+    result = run_mission(load_mission(mission_file(route="safety/pedestrian_close", rate_hz=RATE, hold=0.5)))
+    event = assert_failsafe(result, "collision", code=5)
+    log = read_flight_log(result.log_path)
+    brakes = [e for e in log.events if e.kind == "supervisor_brake"]
+    assert brakes and brakes[0].t < event.t and brakes[0].detail["obstacle"] == "pedestrian"
+    speed = np.abs(log.state[:, log.header.state_names.index("vx")])
+    k_brake, k_hit = (int(np.searchsorted(log.t, e.t)) for e in (brakes[0], event))
+    assert speed[k_hit] < speed[k_brake] - 1.0                 # it hit slower than it was going
+
+
+def test_an_obstacle_reported_on_top_of_the_car_brakes_it_and_is_a_collision(mission_file, port):
+    # a perception stack reports a 1 m obstacle at the car's own position (10 Hz, 3 s): the daemon
+    # cannot tell a glitch from contact, so it brakes to a stop and ends with the collision code
+    mission = load_mission(mission_file(rate_hz=RATE, telemetry_port=port, hold=0.5,
+                                        telemetry_extra="perception = true\nperception_max_age_s = 0.5"))
+    seen = {}
+
+    def perceive():
+        session = zenoh_peer(port)
+        sub = session.declare_subscriber("vflpc/t1/state", lambda s: seen.update(json.loads(s.payload.to_bytes())))
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and not (seen.get("mode") == "running" and seen.get("t", 0.0) > 2.0):
+            time.sleep(0.02)
+        for _ in range(30):
+            x, y = seen["state"][:2]
+            session.put(KEY, json.dumps({"stamp": time.time(), "obstacles": [
+                {"id": "ghost", "shape": {"kind": "circle", "radius": 1.0}, "center": [x, y], "velocity": [0.0, 0.0]}]}))
+            time.sleep(0.1)
+        sub.undeclare()
+        session.close()
+
+    sender = threading.Thread(target=perceive)
+    sender.start()
+    result = run_mission(mission, stop_after_s=30.0)
+    sender.join()
+    event = assert_failsafe(result, "collision: the body overlaps perception:ghost", code=5)
+    log = read_flight_log(result.log_path)
+    k = int(np.searchsorted(log.t, event.t))
+    assert log.state[k, log.header.state_names.index("vx")] > 4.0     # it was driving when the report came
+    assert any(e.kind == "supervisor_brake" and e.detail["obstacle"] == "perception:ghost" for e in log.events)

@@ -1,0 +1,85 @@
+"""The VF-LPC replan trigger under a changing obstacle picture: one replan asked per change (not
+one per tick while the worker plans it), the newest picture when it changes faster than the
+worker plans, and a failed replan asked again."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sim.lpc import make_vflpc
+from sim.plants import make_plant
+from sim.scenarios import load_scenario
+from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.shapes import Circle
+from vflpcd.core.vflpc import plan_job
+
+DT = 0.05
+
+
+@pytest.fixture(scope="module")
+def straight():
+    sc = load_scenario("carsim_avoidance")
+    return dataclasses.replace(sc, obstacles=())
+
+
+@pytest.fixture
+def ctrl(straight):
+    ctrl = make_vflpc(straight)
+    ctrl.state0 = make_plant(straight, 0).state
+    ctrl.step(ctrl.state0, 0.0)                         # the first plan, made at once
+    assert ctrl.plan_version == 1 and ctrl.take_replan() is None
+    return ctrl
+
+
+def walker(vx: float) -> ObstacleState:
+    """A walker 30 m ahead beside the road, walking along it at vx."""
+    return ObstacleState("walker", Circle(0.4), np.array([30.0, 8.0]), 0.0, np.array([vx, 0.0]), 0.0)
+
+
+def test_one_replan_per_change_while_the_worker_plans(ctrl):
+    jitter = ctrl.params.velocity_change / 4
+    ctrl.step(ctrl.state0, DT, [walker(1.0)])            # the walker appears
+    job = ctrl.take_replan()
+    assert job is not None and [o.id for o in job.obstacles] == ["walker"]
+    for k in range(2, 12):                              # the same picture, jitter below the threshold
+        ctrl.step(ctrl.state0, k * DT, [walker(1.0 + jitter * (-1) ** k)])
+        assert ctrl.take_replan() is None, k            # being planned already: not asked again
+    ctrl.install_plan(job, plan_job(ctrl.planner, job))
+    ctrl.step(ctrl.state0, 12 * DT, [walker(1.0 - jitter)])
+    assert ctrl.plan_version == 2 and ctrl.take_replan() is None
+
+
+def test_the_newest_picture_is_planned_next(ctrl):
+    ctrl.step(ctrl.state0, DT, [walker(1.0)])
+    job = ctrl.take_replan()                            # being planned ...
+    for k, vx in enumerate((2.0, 3.0, 4.0), start=2):   # ... while the walker speeds up
+        ctrl.step(ctrl.state0, k * DT, [walker(vx)])
+    ctrl.install_plan(job, plan_job(ctrl.planner, job))
+    newest = ctrl.take_replan()
+    assert newest is not None and newest.t == pytest.approx(4 * DT)
+    np.testing.assert_allclose(newest.obstacles[0].velocity, [4.0, 0.0])
+    assert ctrl.take_replan() is None                   # handed out once
+    ctrl.step(ctrl.state0, 5 * DT, [walker(4.0)])
+    assert ctrl.take_replan() is None                   # that picture is being planned
+
+
+def test_a_failed_replan_is_asked_again(ctrl):
+    ctrl.step(ctrl.state0, DT, [walker(1.0)])
+    job = ctrl.take_replan()
+    ctrl.replan_failed(job, "no plan from here")
+    ctrl.step(ctrl.state0, 2 * DT, [walker(1.0)])       # the same picture, still without a plan for it
+    again = ctrl.take_replan()
+    assert again is not None and again.t == pytest.approx(2 * DT)
+    ctrl.install_plan(again, plan_job(ctrl.planner, again))
+    ctrl.step(ctrl.state0, 3 * DT, [walker(1.0)])
+    assert ctrl.take_replan() is None and ctrl.replan_failures == 1
+
+
+def test_an_obstacle_that_goes_asks_a_replan(ctrl):
+    ctrl.step(ctrl.state0, DT, [walker(1.0)])
+    job = ctrl.take_replan()
+    ctrl.install_plan(job, plan_job(ctrl.planner, job))
+    ctrl.step(ctrl.state0, 2 * DT, [])
+    gone = ctrl.take_replan()
+    assert gone is not None and gone.obstacles == ()

@@ -1,0 +1,17 @@
+"""Shared fixtures of the safety tests."""
+
+import pytest
+
+from sim.scenarios import line_scenario_toml, load_scenario
+
+
+@pytest.fixture
+def line_scenario(tmp_path):
+    """A ground scenario on the straight line (0, 0) -> (length, 0), written to tmp_path and loaded."""
+
+    def build(name: str = "line", **options):
+        f = tmp_path / f"{name}.toml"
+        f.write_text(line_scenario_toml(name, **options))
+        return load_scenario(f)
+
+    return build

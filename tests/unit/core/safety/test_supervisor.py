@@ -1,0 +1,157 @@
+"""The safety supervisor against the simulated plants: stops before what it knows, lets safe
+commands through, and handles movers, impossible stops and the quadrotor's hold."""
+
+import numpy as np
+import pytest
+
+from sim.plants.dynamic_bicycle import BicycleConfig, DynamicBicycle
+from sim.plants.quadrotor import Quadrotor, QuadrotorParams
+from vflpcd.core.footprint import Footprint
+from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.safety.supervisor import (AerialSupervisor, CarLimits, GroundSupervisor, QuadLimits,
+                                           SupervisorConfig)
+from vflpcd.core.shapes import Box, Circle, Sphere
+
+DT = 0.05
+CFG = SupervisorConfig()
+
+
+def car(speed: float, y: float = 0.0, yaw: float = 0.0):
+    cfg = BicycleConfig.load("nominal")
+    lim = cfg.limits
+    limits = CarLimits(cfg.params.wheelbase, lim.a_min, lim.a_max, lim.delta_max, lim.delta_rate_max)
+    body = Footprint.rectangle(cfg.body.length, cfg.body.width, cfg.body.rear_overhang + cfg.params.lr)
+    plant = DynamicBicycle(cfg, np.array([0.0, y, yaw, speed]))
+    return plant, GroundSupervisor(CFG, body, limits, DT), body
+
+
+def obstacle(oid, shape, center, velocity=(0.0, 0.0), stamp=0.0):
+    return ObstacleState(oid, shape, np.array(center, float), 0.0, np.array(velocity, float), stamp)
+
+
+def drive(plant, sup, body, obstacles, command, seconds, moving=False):
+    """Closed loop: the same controller command every tick through the supervisor; returns the least
+    exact clearance, the speed at the first contact (None) and the interventions."""
+    least, impact = np.inf, None
+    for k in range(int(seconds / DT)):
+        t = k * DT
+        now = [obstacle(o.id, o.shape, o.center_at(t), o.velocity, t) for o in obstacles] if moving else obstacles
+        v = sup.filter(plant.state, np.array(command, float), now, t)
+        plant.step(v.command, DT)
+        gap = min(body.clearance(o.shape, o.center_at(t + DT), 0.0, plant.position(), plant.heading())
+                  for o in obstacles)
+        if gap <= 0.0 and impact is None:
+            impact = float(np.hypot(*plant.velocity_world()))
+        least = min(least, gap)
+    return least, impact, sup.interventions
+
+
+@pytest.mark.parametrize("speed", [3.0, 7.0, 12.0])
+def test_a_car_driven_at_a_wall_stops_before_it_and_not_far_from_it(speed):
+    plant, sup, body = car(speed)
+    wall = obstacle("wall", Box(1.0, 10.0), [30.0, 0.0])
+    least, impact, interventions = drive(plant, sup, body, [wall], [3.0, 0.0], 20.0)
+    assert impact is None and least > 0.0
+    assert np.hypot(*plant.velocity_world()) < 0.05                      # at rest in front of it
+    # stops within margin + the front disc's reach past the bumper + the braking slack (decel factor)
+    assert least < 0.1 + 0.7 + 0.12 * speed ** 2 / 12 + 0.5
+    assert interventions >= 1
+
+
+def test_a_command_that_keeps_clear_goes_through_unchanged():
+    plant, sup, body = car(7.0)
+    beside = obstacle("post", Circle(0.3), [20.0, 2.2])                 # 0.95 m body half-width + 0.95 m gap
+    u = np.array([0.5, 0.0])
+    for k in range(60):
+        v = sup.filter(plant.state, u, [beside], k * DT)
+        assert not v.override and np.array_equal(v.command, u)
+        plant.step(v.command, DT)
+    assert sup.interventions == 0
+
+
+def test_commands_are_clipped_to_the_actuator_limits_and_a_nonfinite_one_brakes():
+    plant, sup, _ = car(5.0)
+    v = sup.filter(plant.state, np.array([10.0, 2.0]), [], 0.0)
+    assert v.command.tolist() == [3.0, 0.5] and not v.override
+    v = sup.filter(plant.state, np.array([np.nan, 0.0]), [], DT)
+    assert v.override and v.engaged and v.command[0] == -6.0 and "non-finite" in v.reason
+
+
+def test_a_mover_closing_in_from_behind_does_not_make_the_car_brake():
+    plant, sup, body = car(5.0)
+    chaser = obstacle("chaser", Box(4.5, 1.9), [-6.0, 0.0], velocity=(8.0, 0.0))
+    u = np.array([0.0, 0.0])
+    v = sup.filter(plant.state, u, [chaser], 0.0)
+    assert not v.override
+
+
+def test_a_crossing_pedestrian_the_car_passes_in_front_of_does_not_trigger_a_stop_in_its_way():
+    # at 7 m/s the car's rear bumper passes x = 14.4 after 2.45 s; the pedestrian reaches the lane's
+    # edge (y = -1.35) after 3.1 s: going on clears, stopping would leave the car in the way
+    plant, sup, body = car(7.0)
+    ped = obstacle("ped", Circle(0.4), [14.0, -6.0], velocity=(0.0, 1.5))
+    least, impact, interventions = drive(plant, sup, body, [ped], [0.0, 0.0], 3.0, moving=True)
+    assert impact is None and interventions == 0
+
+
+def test_when_no_stop_is_possible_it_still_brakes_and_hits_slower():
+    def run(supervised):
+        plant, sup, body = car(10.0)
+        block = obstacle("block", Box(1.0, 3.0), [7.0, 0.0])            # 4.4 m from the bumper, 8.3 m needed
+        if not supervised:
+            sup.cfg = SupervisorConfig(margin=-1e9, release_margin=-1e9)
+        return drive(plant, sup, body, [block], [0.0, 0.0], 3.0)
+    _, hit_sup, n = run(True)
+    _, hit_bare, _ = run(False)
+    assert hit_bare == pytest.approx(10.0, abs=0.5)
+    assert hit_sup is not None and hit_sup < 0.75 * hit_bare and n == 1
+
+
+def test_an_intervention_is_released_only_with_the_release_margin():
+    plant, sup, _ = car(0.0)
+    # the front disc reaches 0.69 m past the bumper (2.14 m ahead of the CoG): 0.05 m left, inside the margin
+    wall = obstacle("wall", Box(1.0, 10.0), [2.14 + 0.69 + 0.05 + 0.5, 0.0])
+    v = sup.filter(plant.state, np.array([3.0, 0.0]), [wall], 0.0)
+    assert v.override and v.engaged
+    v = sup.filter(plant.state, np.array([0.0, 0.0]), [wall], DT)        # standing still keeps the same clearance
+    assert v.override and not v.engaged and sup.interventions == 1
+    far = obstacle("wall", Box(1.0, 10.0), [10.0, 0.0])
+    v = sup.filter(plant.state, np.array([0.0, 0.0]), [far], 2 * DT)
+    assert not v.override and v.released
+
+
+def test_contact_is_the_exact_body_clearance():
+    plant, sup, body = car(0.0)
+    on_top = obstacle("on_top", Circle(1.0), [0.0, 0.0])
+    gap, who = sup.contact(plant.state, [on_top], 0.0)
+    assert who == "on_top" and gap < 0
+    aside = obstacle("aside", Circle(0.5), [0.0, 0.95 + 0.5 + 0.02])     # inside the disc cover, 2 cm off the body
+    gap, who = sup.contact(plant.state, [aside], 0.0)
+    assert gap == pytest.approx(0.02, abs=0.01)
+    far = obstacle("far", Circle(0.5), [0.0, 2.0])                      # the cover does not touch it: no contact
+    assert sup.contact(plant.state, [far], 0.0)[0] == np.inf
+
+
+def quad(velocity):
+    params = QuadrotorParams.from_toml()
+    plant = Quadrotor(params, np.array([0.0, 0.0, 2.0, *velocity, 0.0]))
+    names = plant.state_names
+    sup = AerialSupervisor(SupervisorConfig(latency_s=0.15, decel_factor=0.8), 0.3, QuadLimits(params.accel_max),
+                           DT, names)
+    return plant, sup
+
+
+def test_a_quadrotor_flown_at_a_ball_brakes_to_hover_before_it_then_holds():
+    plant, sup = quad([3.0, 0.0, 0.0])
+    ball = ObstacleState("ball", Sphere(0.5), np.array([6.0, 0.0, 2.0]), 0.0, np.zeros(3), 0.0)
+    least = np.inf
+    for k in range(int(6.0 / DT)):
+        v = sup.filter(plant.state, np.array([2.0, 0.0, 0.0]), [ball], k * DT)
+        plant.step(v.command, DT)
+        least = min(least, float(np.linalg.norm(plant.position() - ball.center)) - 0.5 - 0.3)
+        if k == int(3.0 / DT):
+            held = plant.position().copy()
+    assert least > 0.0
+    assert np.linalg.norm(plant.velocity_world()) < 0.1
+    assert np.linalg.norm(plant.position() - held) < 0.1                 # holds where it stopped
+    assert abs(plant.position()[2] - 2.0) < 0.2 and sup.interventions >= 1

@@ -1,0 +1,150 @@
+"""The safety layer of every loop (offline runner, benchmarks, daemon): one ``step`` per tick.
+
+``SafetyGuard.step`` takes the controller's command and returns what may reach the actuator: the
+supervisor's verdict (``supervisor.py``: the command, or the emergency manoeuvre when a collision
+is imminent), and a failsafe reason when the loop must give up the mission: the body touches a
+known obstacle (``collision``), or a monitor of ``monitors.py`` fires (an undrivable plan, no valid
+plan, a tracking error, a vehicle that does not follow its commands, a body held at rest by the
+supervisor). A failsafe other than a collision is put off (for at most ``defer_max_s``) while
+stopping would leave the body in a moving obstacle's way and the command clears it. After a
+failsafe the loop applies ``emergency(state)`` (or the platform's own safe
+action) until the end.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.ports import PlanningController
+from vflpcd.core.safety.monitors import MonitorConfig, PlanLimits, PlanWatch, ResponseWatch, TrackingWatch
+from vflpcd.core.safety.supervisor import GroundSupervisor, Supervisor, Verdict
+
+REST_SPEED = 0.05     # m/s: below this the body counts as at rest
+
+
+@dataclass(frozen=True)
+class GuardStep:
+    """command (n_u,) to send; verdict: the supervisor's; trip: a failsafe reason or None;
+    contact: the exact clearance now (m) to the nearest known obstacle and its id."""
+
+    command: np.ndarray
+    verdict: Verdict
+    trip: str | None
+    contact: tuple[float, str]
+
+
+class SafetyGuard:
+    """supervisor: a ``GroundSupervisor`` or ``AerialSupervisor``; monitors: their thresholds;
+    plan_limits: the vehicle's curvature and lateral-acceleration limits; period: the control
+    period (s)."""
+
+    def __init__(self, supervisor: Supervisor, monitors: MonitorConfig, plan_limits: PlanLimits,
+                 period: float) -> None:
+        self.supervisor, self.cfg = supervisor, monitors
+        self.ground = isinstance(supervisor, GroundSupervisor)
+        self.plans = PlanWatch(monitors, plan_limits)
+        self.tracking = TrackingWatch(monitors)
+        self.response = ResponseWatch(monitors, period)
+        self.reset()
+
+    def reset(self) -> None:
+        self.supervisor.reset()
+        self.plans.reset()
+        self.tracking.reset()
+        self.response.reset()
+        self.held_since: float | None = None
+        self.deferred_since: float | None = None
+        self._controller, self._planning = None, False
+
+    @property
+    def interventions(self) -> int:
+        return self.supervisor.interventions
+
+    def emergency(self, state: np.ndarray) -> np.ndarray:
+        """The platform's emergency manoeuvre (brake, steering held / brake to hover and hold)."""
+        u = self.supervisor.emergency(state)
+        self.supervisor._sent(u)
+        return u
+
+    def step(self, t: float, state: np.ndarray, command: np.ndarray, obstacles: Sequence[ObstacleState],
+             controller=None, route_error: float = np.nan) -> GuardStep:
+        """state (n_x,), the controller's command (n_u,) at time t, the known obstacles; controller:
+        checked for its plan when it is a ``PlanningController`` (whose ``plan_gate`` is then set to
+        refuse undrivable replans); route_error: the distance to the route (m), the tracking error
+        of a controller without a plan of its own (a planning one's is the distance to its plan's path)."""
+        sup = self.supervisor
+        state = np.asarray(state, float)
+        verdict = sup.filter(state, command, obstacles, t)
+        contact = sup.contact(state, obstacles, t) if verdict.clearance < 0.5 else (np.inf, "")
+        trip = None
+        if contact[0] <= 0.0:
+            trip = f"collision: the body overlaps {contact[1]} by {-contact[0]:.2f} m"
+        if controller is not self._controller:
+            self._controller, self._planning = controller, isinstance(controller, PlanningController)
+            if self._planning:
+                controller.plan_gate = self.plans.admit
+        bound = self.cfg.route_bound
+        if self._planning:
+            reason, distance = self.plans.update(t, controller.current_plan, controller.replans,
+                                                 controller.replan_failures, self._position(state))
+            trip = trip or reason
+            if controller.current_plan is not None:
+                route_error, bound = distance, self.cfg.tracking_bound
+        trip = trip or self.tracking.update(t, route_error, bound)
+        trip = trip or self._response(t, state, verdict.command)
+        trip = trip or self._blocked(t, state, verdict)
+        if trip and not trip.startswith("collision") and self._defer(t, state, command, obstacles):
+            trip = None
+        elif not trip:
+            self.deferred_since = None
+        return GuardStep(verdict.command, verdict, trip, contact)
+
+    def _defer(self, t: float, state: np.ndarray, command: np.ndarray, obstacles) -> bool:
+        """Whether to put off giving up the mission because stopping now would leave the body in a
+        mover's way while the command clears it (for at most ``defer_max_s``)."""
+        if self.deferred_since is not None and t - self.deferred_since >= self.cfg.defer_max_s:
+            return False
+        if not self.supervisor.braking_meets_mover(state, command, obstacles, t):
+            return False
+        if self.deferred_since is None:
+            self.deferred_since = t
+        return True
+
+    # ------------------------------------------------------------------ pieces
+    def _position(self, state: np.ndarray) -> np.ndarray:
+        pos, _ = self.supervisor._pose_now(state)
+        return pos
+
+    def _speed(self, state: np.ndarray) -> float:
+        sup = self.supervisor
+        if self.ground:
+            return float(state[sup._idx[3]])
+        return float(np.linalg.norm(state[sup._v]))
+
+    def _response(self, t: float, state: np.ndarray, sent: np.ndarray) -> str | None:
+        sup = self.supervisor
+        if self.ground:
+            x = state[sup._idx]
+            delta = sup.delta if sup.delta is not None else 0.0
+            return self.response.update(t, x[3], x[3:4], sent[:1], x[5], x[3] * np.tan(delta) / sup.limits.wheelbase)
+        v = state[sup._v]
+        return self.response.update(t, float(np.linalg.norm(v)), v, sent)
+
+    def _blocked(self, t: float, state: np.ndarray, verdict: Verdict) -> str | None:
+        if not (verdict.override and self._speed(state) < REST_SPEED):
+            self.held_since = None
+            return None
+        if self.held_since is None:
+            self.held_since = t
+        if t - self.held_since >= self.cfg.blocked_s:
+            return (f"blocked: held at rest by the safety supervisor for {t - self.held_since:.1f} s "
+                    f"({verdict.nearest} in the way)")
+        return None
+
+    @staticmethod
+    def at_rest(speed: float) -> bool:
+        return speed < REST_SPEED
