@@ -14,8 +14,11 @@ younger than ``command_hold`` s, so a stalled controller never keeps the vehicle
 ECU's own command timeout then brakes it.
 
 Faults (``fault()``, the daemon's link-loss failsafe): the bus is down, no INS frame for
-``state_timeout`` s, or the ECU reports that it took over (braking or stopped with a command
-timeout, or manual) while the daemon commands. A lost bus is reopened every ``reconnect_s`` s;
+``state_timeout`` s, the ECU reports that it took over (braking or stopped after a command
+timeout or alive-counter errors, or manual) while the daemon commands, or VehicleCmd frames from
+another sender were on the bus in the last ``FOREIGN_WINDOW_S`` (the bus does not echo the
+driver's own frames: these are replayed, forged or a second commander's; counted in
+``foreign_commands``). A lost bus is reopened every ``reconnect_s`` s;
 frames from a restarted ECU are taken again at once (``link_restored`` in the log).
 
 Safe action (``failsafe``): AccelCmd = a_min with the steering held until the vehicle stands
@@ -49,6 +52,7 @@ STATE_NAMES = ("X", "Y", "psi", "vx", "vy", "omega")
 CONTROL_NAMES = ("a_x", "delta_f")
 BUS_LOG_FORMATS = ("", "asc", "log", "blf")
 STANDSTILL = 0.05          # m/s
+FOREIGN_WINDOW_S = 1.0     # s: another sender's VehicleCmd this recent is a fault
 
 
 class _LockedLogger(can.Listener):
@@ -96,6 +100,8 @@ class CanVehicle:
         self.cycle_s = self.codec.message("VehicleCmd").cycle_time * 1e-3
         self.bad_frames = dict.fromkeys(FRAME_ERRORS, 0)
         self.frames_ok = 0
+        self.foreign_commands = 0            # VehicleCmd frames from another sender (replayed, forged, a second master)
+        self._foreign_ns: int | None = None
         self.undecodable = 0                 # frames that passed the checks and still failed to decode
         self.frames_sent = 0
         self.send_failures = 0
@@ -158,6 +164,11 @@ class CanVehicle:
                 return "the ECU switched to manual"
             if self.ecu_mode in ("braking", "stopped") and self.ecu_faults.get("FaultCmdTimeout"):
                 return f"the ECU took over ({self.ecu_mode}: command timeout)"
+            if self.ecu_mode in ("braking", "stopped") and self.ecu_faults.get("FaultBadCounter"):
+                return f"the ECU took over ({self.ecu_mode}: alive-counter errors)"
+            if self._foreign_ns is not None and now - self._foreign_ns < FOREIGN_WINDOW_S * 1e9:
+                return (f"another sender's VehicleCmd frames on the bus ({self.foreign_commands}: replayed, "
+                        f"forged or a second commander)")
         return None
 
     async def send(self, command: np.ndarray) -> None:
@@ -197,7 +208,7 @@ class CanVehicle:
 
     def link_stats(self) -> dict:
         return {"frames_ok": self.frames_ok, "frames_sent": self.frames_sent, "bad_frames": dict(self.bad_frames),
-                "undecodable": self.undecodable,
+                "undecodable": self.undecodable, "foreign_commands": self.foreign_commands,
                 "send_failures": self.send_failures, "reconnects": self.reconnects, "ecu_mode": self.ecu_mode}
 
     # ------------------------------------------------------------------ bus
@@ -309,8 +320,12 @@ class CanVehicle:
 
     def _take(self, name: str, signals: dict) -> None:
         now = time.monotonic_ns()
-        if name == "VehicleCmd":
-            return                                 # another sender's command (or our own echo)
+        if name == "VehicleCmd":                   # the bus does not echo our own: another node commands
+            self.foreign_commands += 1
+            self._foreign_ns = now
+            if self.foreign_commands in (1, 10, 100, 1000, 10000):
+                log.warning("event=foreign_command count=%d", self.foreign_commands)
+            return
         if name == "InsHeadingVelocity" and not self._ins_counter.accept(signals["AliveCounter"]):
             self._count_bad("counter", f"InsHeadingVelocity counter {signals['AliveCounter']}")
             return

@@ -80,17 +80,18 @@ def bench_loop(mission_path: Path | None, rate_hz: float, duration_s: float, exe
     log = read_flight_log(result.log_path)
     period_ms = 1e3 / rate_hz
     running = log.compute_s > 0
-    late = log.lateness_s * 1e3
-    comp = log.compute_s[running] * 1e3
+    timed = log.mode == "running"                 # the timed run, not the braking to rest after it
+    late = log.lateness_s[timed] * 1e3
+    comp = log.compute_s[running & timed] * 1e3
     loop = result.outcome.loop
     figures = {
         "rate_hz": rate_hz, "duration_s": duration_s, "executor": mission.workers.executor,
-        "ticks": int(len(log)), "outcome": result.outcome.reason,
+        "ticks": int(np.sum(timed)), "outcome": result.outcome.reason,
         "compute_over_period": int(np.sum(comp > period_ms)),
         "lateness_p50_ms": float(np.percentile(late, 50)), "lateness_p99_ms": float(np.percentile(late, 99)),
         "lateness_max_ms": float(late.max()),
         "compute_p50_ms": float(np.percentile(comp, 50)), "compute_p99_ms": float(np.percentile(comp, 99)),
-        "compute_max_ms": float(comp.max()), "overruns": int(np.sum(log.overrun)),
+        "compute_max_ms": float(comp.max()), "overruns": int(np.sum(log.overrun[timed])),
         "skipped": int(loop.rate.skipped) if loop is not None else None,
         "replans": len(loop.workers.latencies["replan"]) if loop and loop.workers else None,
         "refits": len(loop.workers.latencies["refit"]) if loop and loop.workers else None,

@@ -21,6 +21,10 @@ Modes (the Mode signal), as a drive-by-wire ECU behaves:
 - ``stopped`` (4): standstill after a timeout; latched until a valid Enable = 0 frame re-arms the
   ECU (``ready``). A hand-back (Enable = 0) brakes to ``ready`` directly.
 FaultBadCounter, FaultBadChecksum and FaultOutOfRange are set for 1 s after such a frame.
+End-to-end supervision, as a drive-by-wire ECU's frame check does: ``max_counter_errors``
+alive-counter errors within one second while automatic (frames replayed or injected beside the
+commander's) take the vehicle over like a command timeout, with FaultBadCounter held: braking,
+then a latched ``stopped`` (0 turns it off).
 
 A bus that fails (e.g. the python-can-remote hub goes away) counts as a command loss: the ECU
 brakes and reopens the bus every 0.5 s. Nothing a peer sends can stop the loop.
@@ -51,12 +55,15 @@ class CanEcu:
     at its start state; ``limits``: its BicycleLimits; ``codec``: the DBC."""
 
     def __init__(self, bus_factory, plant, limits, codec: VehicleCan, *, cmd_timeout_s: float = 0.1,
-                 physics_rate_hz: float = 200.0) -> None:
+                 physics_rate_hz: float = 200.0, max_counter_errors: int = 5) -> None:
         self.bus_factory, self.plant, self.limits, self.codec = bus_factory, plant, limits, codec
         self.cmd_timeout_s, self.dt = cmd_timeout_s, 1.0 / physics_rate_hz
+        self.max_counter_errors = max_counter_errors
+        self._counter_errors: list[float] = []     # times of the alive-counter errors in the last second
         self._mode = READY
         self._engaged = False              # the plant is held at its start state until the first Enable = 1
-        self._timeout_fault = False
+        self._timeout_fault = False        # FaultCmdTimeout: a command timeout took the vehicle over
+        self._latched = False              # a take-over (timeout or counter errors) ends in a latched stop
         self._fault_until = dict.fromkeys(FAULT_BITS.values(), 0.0)
         self._command = np.array([limits.a_min, 0.0])
         self._last_cmd = 0.0
@@ -66,8 +73,8 @@ class CanEcu:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._warned: dict[str, float] = {}
-        self.counts = {"commands_ok": 0, "timeouts": 0, "bus_errors": 0, "status_sent": 0, "ins_sent": 0,
-                       "reopens": 0, "malformed": 0}
+        self.counts = {"commands_ok": 0, "timeouts": 0, "counter_errors": 0, "bus_errors": 0, "status_sent": 0,
+                       "ins_sent": 0, "reopens": 0, "malformed": 0}
         self.bad_frames = dict.fromkeys(FRAME_ERRORS, 0)
         self.status_period = codec.message("VehicleStatus").cycle_time * 1e-3
         self.ins_period = codec.message("InsPosition").cycle_time * 1e-3
@@ -194,6 +201,7 @@ class CanEcu:
         s = frame.signals
         if not self._counter.accept(s["AliveCounter"]):
             self._bad("counter", f"counter {s['AliveCounter']}")
+            self._counter_error()
             return
         self.counts["commands_ok"] += 1
         self._last_cmd = time.monotonic()
@@ -202,20 +210,32 @@ class CanEcu:
                 self._mode, self._engaged = AUTOMATIC, True
                 self._command = np.array([s["AccelCmd"], s["SteerAngleCmd"]])
         elif self._mode == STOPPED:
-            self._mode, self._timeout_fault = READY, False          # re-armed
+            self._mode, self._latched, self._timeout_fault = READY, False, False      # re-armed
+            self._fault_until["FaultBadCounter"] = 0.0
         elif self._mode == AUTOMATIC:
             self._mode = BRAKING                                   # hand-back: brake to ready
 
     def _bad(self, kind: str, detail: str) -> None:
         self.bad_frames[kind] += 1
         if kind in FAULT_BITS:
-            self._fault_until[FAULT_BITS[kind]] = time.monotonic() + FAULT_HOLD_S
+            bit = FAULT_BITS[kind]
+            self._fault_until[bit] = max(self._fault_until[bit], time.monotonic() + FAULT_HOLD_S)
         self._warn(kind, f"event=bad_frame kind={kind} detail={detail} counts={self.bad_frames}")
 
-    def _take_over(self) -> None:
-        self._mode, self._timeout_fault = BRAKING, True
-        self.counts["timeouts"] += 1
-        log.warning("event=command_timeout action=brake_to_stop speed=%.2f", self.speed)
+    def _counter_error(self) -> None:
+        """End-to-end supervision: too many counter errors in a second take the vehicle over."""
+        if not self.max_counter_errors:
+            return
+        now = time.monotonic()
+        self._counter_errors = [t for t in self._counter_errors if now - t < 1.0] + [now]
+        if len(self._counter_errors) >= self.max_counter_errors and self._mode == AUTOMATIC:
+            self._fault_until["FaultBadCounter"] = now + 1e9          # held while latched
+            self._take_over("counter_errors")
+
+    def _take_over(self, why: str = "command_timeout") -> None:
+        self._mode, self._latched, self._timeout_fault = BRAKING, True, why == "command_timeout"
+        self.counts["timeouts" if why == "command_timeout" else why] += 1
+        log.warning("event=%s action=brake_to_stop speed=%.2f", why, self.speed)
 
     # ------------------------------------------------------------------ physics
     def _step(self) -> None:
@@ -229,7 +249,7 @@ class CanEcu:
             u = np.array([self.limits.a_min, self.plant.applied_control[1]])   # brakes, steering held
         self.plant.step(u, self.dt)
         if self._mode == BRAKING and self.standstill:
-            self._mode = STOPPED if self._timeout_fault else READY
+            self._mode = STOPPED if self._latched else READY
             log.warning("event=standstill mode=%s", self.mode)
 
     # ------------------------------------------------------------------ publishing
@@ -280,6 +300,9 @@ def add_arguments(p) -> None:
     p.add_argument("--dbc", default=None, help="CAN database (default config/can/vehicle.dbc)")
     p.add_argument("--cmd-timeout", type=float, default=0.1, help="brake to a stop after this long without a "
                                                                   "valid command, s (default 0.1)")
+    p.add_argument("--max-counter-errors", type=int, default=5,
+                   help="alive-counter errors within 1 s that take the vehicle over to a latched stop "
+                        "(end-to-end supervision; 0: off; default 5)")
     p.add_argument("--physics-rate", type=float, default=200.0, help="plant steps per second (default 200)")
     p.add_argument("--seed", type=int, default=0, help="plant noise seed (default 0)")
     p.add_argument("--connect-timeout", type=float, default=10.0, help="give up opening the bus after this long, s")
@@ -299,6 +322,7 @@ def run(args) -> int:
             raise ConfigError("command line", f"--{name}", f"must lie in [{lo:g}, {hi:g}], got {value:g}")
 
     check("cmd-timeout", args.cmd_timeout, 0.02, 5.0)
+    check("max-counter-errors", args.max_counter_errors, 0, 1000)
     check("physics-rate", args.physics_rate, 50.0, 2000.0)
     check("connect-timeout", args.connect_timeout, 0.0, 600.0)
     check("seed", args.seed, 0, 2**32 - 1)
@@ -325,7 +349,8 @@ def run(args) -> int:
 
     sc = mission.scenario
     ecu = CanEcu(factory, make_plant(sc, args.seed), BicycleConfig.load(sc.params).limits, codec,
-                 cmd_timeout_s=args.cmd_timeout, physics_rate_hz=args.physics_rate)
+                 cmd_timeout_s=args.cmd_timeout, physics_rate_hz=args.physics_rate,
+                 max_counter_errors=args.max_counter_errors)
     stop = threading.Event()
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):

@@ -143,6 +143,40 @@ def test_silence_bad_frames_and_an_ecu_takeover_are_faults(channel):
     assert stats["bad_frames"] == {"unknown_id": 1, "dlc": 1, "checksum": 2, "range": 1, "counter": 1}
 
 
+def test_another_senders_commands_and_an_ecu_counter_takeover_are_faults(channel):
+    async def main():
+        node, d = Node(channel), driver(channel, state_timeout=0.5)
+        await d.connect()
+        node.publish()
+        await _settle()
+        await d.enable()
+        await d.send(np.array([0.5, 0.0]))
+        await _settle()
+        assert d.fault() is None and d.foreign_commands == 0           # its own frames do not come back
+        replayed = node.codec.encode("VehicleCmd", {"AccelCmd": 2.0, "SteerAngleCmd": 0.3, "Enable": 1,
+                                                    "AliveCounter": 3})
+        node.bus.send(replayed)
+        node.publish()
+        await _settle()
+        assert "another sender's VehicleCmd frames on the bus (1" in d.fault()
+        assert d.link_stats()["foreign_commands"] == 1
+        await d.close()
+        node.close()
+
+        node, d = Node(channel), driver(channel, state_timeout=0.5)
+        await d.connect()
+        node.publish()
+        await _settle()
+        await d.enable()
+        node.publish(mode=3, faults={"FaultCmdTimeout": 0, "FaultBadCounter": 1, "FaultBadChecksum": 0,
+                                     "FaultOutOfRange": 0})
+        await _settle()
+        assert "alive-counter errors" in d.fault()
+        await d.close()
+        node.close()
+    asyncio.run(main())
+
+
 def test_failsafe_brakes_with_the_steering_held_then_hands_back_at_standstill(channel):
     async def main():
         node, d = Node(channel), driver(channel)

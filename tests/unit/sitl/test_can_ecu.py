@@ -47,8 +47,9 @@ class Node:
 @pytest.fixture
 def rig(request):
     channel = f"ecu-{request.node.name}"
+    marker = request.node.get_closest_marker("max_counter_errors")
     ecu = CanEcu(lambda: can.Bus(interface="virtual", channel=channel), make_plant(SC, 0), LIMITS, CODEC,
-                 cmd_timeout_s=0.1)
+                 cmd_timeout_s=0.1, max_counter_errors=marker.args[0] if marker else 5)
     tester = Node(channel)
     ecu.start()
     yield ecu, tester
@@ -108,8 +109,29 @@ def _with_checksum(frame_id, data):
     return can.Message(arbitration_id=frame_id, data=bytes(data), is_extended_id=False)
 
 
+def test_replayed_commands_beside_the_commander_take_the_vehicle_over_to_a_latched_stop(rig):
+    ecu, t = rig
+    t.stream(0.5, accel=2.0)
+    assert ecu.mode == "automatic"
+    replay = [CODEC.encode("VehicleCmd", {"AccelCmd": 2.0, "SteerAngleCmd": 0.3, "Enable": 1, "AliveCounter": c})
+              for c in range(16)]
+    for k in range(12):                              # old frames between the live 50 Hz stream
+        t.command(accel=0.0)
+        t.bus.send(replay[(k * 7) % 16])
+        time.sleep(0.02)
+    assert wait_for(lambda: ecu.mode in ("braking", "stopped"), 0.5)
+    assert ecu.stats()["counter_errors"] == 1 and ecu.stats()["timeouts"] == 0
+    assert ecu.faults["FaultBadCounter"] == 1
+    t.stream(1.5, accel=2.0)                         # the live commander cannot drive it on: latched
+    assert ecu.mode == "stopped" and ecu.standstill and ecu.faults["FaultBadCounter"] == 1
+    t.command(enable=0)                              # re-armed by a hand-back
+    assert wait_for(lambda: ecu.mode == "ready", 0.5) and ecu.faults["FaultBadCounter"] == 0
+
+
+@pytest.mark.max_counter_errors(0)
 def test_fuzz_thousands_of_bad_frames_are_dropped_counted_and_ignored(rig):
-    """3000 malformed frames between the valid 50 Hz stream: the ECU follows the stream only."""
+    """3000 malformed frames between the valid 50 Hz stream (end-to-end supervision off): the ECU
+    follows the stream only."""
     ecu, t = rig
     rng = np.random.default_rng(7)
     good = CODEC.encode("VehicleCmd", {"AccelCmd": 0.5, "SteerAngleCmd": 0.0, "Enable": 1, "AliveCounter": 0}).data

@@ -20,7 +20,8 @@ import numpy as np
 
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.ports import PlanningController
-from vflpcd.core.safety.monitors import MonitorConfig, PlanLimits, PlanWatch, ResponseWatch, TrackingWatch
+from vflpcd.core.safety.monitors import (MonitorConfig, Persistence, PlanLimits, PlanWatch, ResponseWatch,
+                                         TrackingWatch)
 from vflpcd.core.safety.supervisor import GroundSupervisor, Supervisor, Verdict
 
 REST_SPEED = 0.05     # m/s: below this the body counts as at rest
@@ -56,7 +57,7 @@ class SafetyGuard:
         self.plans.reset()
         self.tracking.reset()
         self.response.reset()
-        self.held_since: float | None = None
+        self.held = Persistence()
         self.deferred_since: float | None = None
         self._controller, self._planning = None, False
 
@@ -135,14 +136,9 @@ class SafetyGuard:
         return self.response.update(t, float(np.linalg.norm(v)), v, sent)
 
     def _blocked(self, t: float, state: np.ndarray, verdict: Verdict) -> str | None:
-        if not (verdict.override and self._speed(state) < REST_SPEED):
-            self.held_since = None
-            return None
-        if self.held_since is None:
-            self.held_since = t
-        if t - self.held_since >= self.cfg.blocked_s:
-            return (f"blocked: held at rest by the safety supervisor for {t - self.held_since:.1f} s "
-                    f"({verdict.nearest} in the way)")
+        held = self.held.update(t, verdict.override and self._speed(state) < REST_SPEED)
+        if held is not None and held >= self.cfg.blocked_s:
+            return f"blocked: held at rest by the safety supervisor for {held:.1f} s ({verdict.nearest} in the way)"
         return None
 
     @staticmethod

@@ -171,6 +171,22 @@ class PlanWatch:
         return np.sort(plan.s[bad])
 
 
+class Persistence:
+    """How long a condition has held: ``update(t, holds)`` gives the seconds since the first tick of
+    the current run of ticks on which it held, None when it does not hold now."""
+
+    def __init__(self) -> None:
+        self.since: float | None = None
+
+    def update(self, t: float, holds: bool) -> float | None:
+        if not holds:
+            self.since = None
+            return None
+        if self.since is None:
+            self.since = t
+        return t - self.since
+
+
 class TrackingWatch:
     """The distance to the reference, with a persistence time."""
 
@@ -179,17 +195,12 @@ class TrackingWatch:
         self.reset()
 
     def reset(self) -> None:
-        self.since = None
+        self.off = Persistence()
 
     def update(self, t: float, error: float, bound: float) -> str | None:
-        if not np.isfinite(error) or error <= bound:
-            self.since = None
-            return None
-        if self.since is None:
-            self.since = t
-        if t - self.since >= self.cfg.tracking_persist:
-            return (f"tracking_error: {error:.2f} m from the path for {t - self.since:.1f} s "
-                    f"(bound {bound:g} m)")
+        held = self.off.update(t, bool(np.isfinite(error) and error > bound))
+        if held is not None and held >= self.cfg.tracking_persist:
+            return f"tracking_error: {error:.2f} m from the path for {held:.1f} s (bound {bound:g} m)"
         return None
 
 
