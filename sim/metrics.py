@@ -89,6 +89,8 @@ def lateral_acceleration(t: np.ndarray, velocity: np.ndarray, v_min: float = 0.5
     value is NaN.
     """
     v = np.asarray(velocity, float)
+    if len(t) < 2:                                   # a run that ended at its first step
+        return np.full(len(t), np.nan)
     a = np.gradient(v, np.asarray(t, float), axis=0, edge_order=2 if len(t) > 2 else 1)
     speed = np.linalg.norm(v, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):

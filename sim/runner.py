@@ -11,7 +11,8 @@ outside t_cal; its wall time is t_background.
 The run ends when the robot's progress along the path reaches the goal (``completed``), when
 t_max is reached (``timeout``), when the controller or the plant produces a non-finite value
 (``diverged``), or when the guard gives up the mission or the controller raises (a failsafe: the
-emergency manoeuvre is then applied until the body is at rest): ``stopped`` when the supervisor held the body at rest in front
+emergency manoeuvre is then applied until the body is at rest; without a guard a raising
+controller ends the run at once: ``error``): ``stopped`` when the supervisor held the body at rest in front
 of an obstacle for the monitors' ``blocked_s``, ``failsafe`` for the other monitors. A run in which
 the body touched an obstacle ends ``collision``, whatever else happened.
 """
@@ -34,7 +35,7 @@ from vflpcd.safety import guard_for
 
 REST_HOLD_S = 0.5      # after a failsafe, the run ends once the body has been at rest this long
 # `vflpcd sim`'s exit code per outcome (the daemon's codes: 3 the safety layer stopped it, 5 a collision)
-OUTCOME_EXIT = {"completed": 0, "timeout": 1, "diverged": 1, "stopped": 3, "failsafe": 3, "collision": 5}
+OUTCOME_EXIT = {"completed": 0, "timeout": 1, "diverged": 1, "error": 1, "stopped": 3, "failsafe": 3, "collision": 5}
 
 
 @dataclass
@@ -119,10 +120,12 @@ def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0, *
             try:
                 u = np.asarray(controller.step(x, t, perceived), dtype=float)
             except Exception as exc:      # as in the daemon: the controller failed, the guard stops the body
-                if guard is None:
-                    raise
                 failsafe = f"controller_error: {type(exc).__name__}: {exc}"[:300]
-                u = guard.emergency(x)
+                if guard is None:         # nothing to stop it with: the run ends here
+                    outcome = "error"
+                    u = np.full(len(plant.control_names), np.nan)
+                else:
+                    u = guard.emergency(x)
             t_cal = (time.perf_counter_ns() - t0) * 1e-9
         finite = u.shape == (len(plant.control_names),) and bool(np.all(np.isfinite(u)))
         sent, override, t_sup = u, False, 0.0
@@ -151,7 +154,7 @@ def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0, *
             rows["applied"].append(np.full(len(plant.control_names), np.nan))
             break
         if not finite:
-            outcome = "diverged"
+            outcome = "diverged" if outcome != "error" else outcome
             rows["applied"].append(np.full(len(plant.control_names), np.nan))
             break
         if failsafe:

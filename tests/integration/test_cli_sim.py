@@ -117,3 +117,26 @@ def test_train_koopman_through_the_vflpcd_command(tmp_path):
     bad = subprocess.run(VFLPCD + ["train", "koopman", "--data", str(data), "--val", "nope", "--n-lift", "10",
                                    "--out", str(out)], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_bench_safety_runs_a_scene_with_and_without_the_supervisor_and_writes_json_and_png(tmp_path):
+    proc = subprocess.run(VFLPCD + ["bench", "safety", "--scene", "wall_across", "--controller", "pure_pursuit",
+                                    "--out", str(tmp_path)], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "MPLBACKEND": "Agg"})
+    assert proc.returncode == 0, proc.stderr
+    assert "supervisor cost per tick" in proc.stdout and "[met] zero collisions behind the supervisor" in proc.stdout
+    doc = json.loads((tmp_path / "bench_safety.json").read_text())
+    on, off = doc["runs"]
+    assert on["supervised"] and on["outcome"] == "stopped" and on["collisions"] == 0 and 0 < on["rest_gap"] < 1.5
+    assert not off["supervised"] and off["outcome"] == "collision" and off["impact_speed"] > 6.0
+    assert doc["supervisor_us"]["ticks"] > 100 and doc["supervisor_us"]["median"] > 0
+    assert (tmp_path / "bench_safety.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_bench_safety_refuses_an_unknown_scene_in_one_line(tmp_path):
+    proc = subprocess.run(VFLPCD + ["bench", "safety", "--scene", "nope", "--out", str(tmp_path)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        "vflpcd: error: command line: --scene: no such scene 'nope' (have: wall_across, narrow_turn, "
+        "pedestrian_close, tight_gap, dense_corridor)"]

@@ -16,6 +16,7 @@ rate-limited move; then braking at ``decel_factor`` |a_min| with that steering h
 The applied steering angle is not measured: it is tracked from the commands sent, through the
 actuator's rate limit. Body: covering discs (``Footprint``). Emergency: a_x = a_min, steering held.
 
+
 Quadrotor (state [X, Y, Z, vx, vy, vz, ...]; command the world acceleration, gravity excluded).
 Prediction: the clipped command for the reaction time, then a straight stop at ``decel_factor``
 accel_max. Body: a sphere. Emergency: brake along -v to hover, then hold the position where the
