@@ -37,6 +37,9 @@ from vflpcd.core.footprint import Footprint
 from vflpcd.core.obstacles import ObstacleState
 
 
+LARGE_SHAPE_M = 3.0      # m: a bounding radius beyond which the reach test uses the exact distance (walls)
+
+
 @dataclass(frozen=True)
 class SupervisorConfig:
     """The supervisor's thresholds (``[supervisor]`` of config/safety.toml; a mission's ``[safety]``
@@ -101,6 +104,7 @@ class Supervisor:
         self.reach = float(np.max(np.abs(self.offsets)) + self.radius)
         self._middle = float(np.mean(self.offsets))            # body middle ahead of the reference point (m)
         self._radius_cache: dict[int, float] = {}
+        self._far: dict[tuple, tuple[np.ndarray, float]] = {}     # large static obstacles: pose, distance
         self.reset()
 
     def reset(self) -> None:
@@ -144,6 +148,12 @@ class Supervisor:
         if not obstacles:
             return np.inf, ""
         arrays = self._arrays(obstacles)
+        near = self._within_reach(state, u, obstacles, arrays, t)
+        if not np.any(near):
+            return np.inf, ""
+        if not np.all(near):
+            obstacles = [o for o, n in zip(obstacles, near) if n]
+            arrays = tuple(a[near] for a in arrays)
         pos, yaw, times = self._poses(state, u, True)
         (cs, ws), (cm, wm) = self._clearances(pos, yaw, t + times, obstacles, arrays)
         if cm < self.cfg.release_margin:
@@ -152,6 +162,44 @@ class Supervisor:
             if cg > cm:
                 cm, wm = cg, wg
         return (cs, ws) if cs <= cm else (cm, wm)
+
+    def _within_reach(self, state: np.ndarray, u: np.ndarray, obstacles: Sequence[ObstacleState], arrays,
+                      t: float) -> np.ndarray:
+        """Which obstacles may come within release_margin of the body during the manoeuvre "u for the
+        reaction time, then the stop" (its length and duration bound it), shape (n_o,) bool: a lower
+        bound of each one's distance from the body now (the exact signed distance for a large shape,
+        whose bounding circle says little, else the bounding circle's), less its own motion."""
+        centers, vel, stamps, _ = arrays
+        distance, duration = self._extent(state, u)
+        pos, _ = self._pose_now(state)
+        d = pos.shape[0]
+        bound = np.array([self._bounding(o.shape) for o in obstacles])
+        gap = np.sqrt(np.sum((centers[:, :d] - pos) ** 2, axis=1)) - bound
+        for i in np.flatnonzero(bound > LARGE_SHAPE_M):
+            gap[i] = self._large_gap(obstacles[i], centers[i, :d], pos, vel[i])
+        travel = np.sqrt(np.sum(vel[:, :d] ** 2, axis=1)) * np.maximum(np.abs(t + duration - stamps), np.abs(t - stamps))
+        return gap - travel <= distance + self.reach + self.cfg.release_margin
+
+    def _large_gap(self, o: ObstacleState, center: np.ndarray, pos: np.ndarray, vel: np.ndarray) -> float:
+        """A lower bound of a large obstacle's distance from pos: its exact signed distance, reused
+        for a static one (less how far the body has moved since) while that leaves it far away."""
+        if np.any(vel != 0.0):
+            return float(o.shape.signed_distance(pos[None, :], center, o.yaw)[0])
+        key = (o.id, id(o.shape), float(center[0]), float(center[1]), o.yaw)
+        seen = self._far.get(key)
+        if seen is not None:
+            bound = seen[1] - float(np.sqrt(np.sum((pos - seen[0]) ** 2)))
+            if bound > LARGE_SHAPE_M:
+                return bound
+        gap = float(o.shape.signed_distance(pos[None, :], center, o.yaw)[0])
+        if len(self._far) > 256:
+            self._far.clear()
+        self._far[key] = (pos.copy(), gap)
+        return gap
+
+    def _extent(self, state: np.ndarray, u: np.ndarray) -> tuple[float, float]:  # pragma: no cover - abstract
+        """Length (m) and duration (s) of the manoeuvre "u for the reaction time, then the stop"."""
+        raise NotImplementedError
 
     @staticmethod
     def _arrays(obstacles: Sequence[ObstacleState]):
@@ -306,6 +354,11 @@ class GroundSupervisor(Supervisor):
             self.delta = float(np.arctan(self.limits.wheelbase * om / vx)) if vx > 1.0 else 0.0
         return self.delta
 
+    def _extent(self, state: np.ndarray, u: np.ndarray) -> tuple[float, float]:
+        v0 = max(float(state[self._idx[3]]), 0.0)
+        t1, v1, s1 = _run(v0, float(u[0]), self.reaction)
+        return s1 + v1 * v1 / (2.0 * self.a_brake), t1 + v1 / self.a_brake
+
     def _poses(self, state: np.ndarray, u: np.ndarray, brake: bool):
         """Poses (K, 2), yaws (K,) and times from now (K,) of "u for the reaction time, then the stop"
         (``brake``) or "u held as long" (not ``brake``)."""
@@ -385,6 +438,12 @@ class AerialSupervisor(Supervisor):
 
     def _clip(self, u: np.ndarray) -> np.ndarray:
         return np.clip(u, -self.limits.accel_max, self.limits.accel_max)
+
+    def _extent(self, state: np.ndarray, u: np.ndarray) -> tuple[float, float]:
+        v0, T = state[self._v], self.reaction
+        speed = float(np.linalg.norm(v0 + u * T))
+        return float(np.linalg.norm(v0 * T + 0.5 * u * T * T)) + speed * speed / (2.0 * self.a_brake), \
+            T + speed / self.a_brake
 
     def _poses(self, state: np.ndarray, u: np.ndarray, brake: bool):
         p0, v0, T = state[self._p], state[self._v], self.reaction
