@@ -28,6 +28,7 @@ obstacles in one array operation, exact signed distances only for the obstacles 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -215,38 +216,39 @@ class Supervisor:
         movers behind the body's middle)."""
         d = pos.shape[1]
         centers, vel, stamps, moving = arrays
-        centers, vel = centers[:, :d], vel[:, :d]
-        bound = np.array([self._bounding(o.shape) for o in obstacles])
+        bound = np.fromiter((self._bounding(o.shape) for o in obstacles), float, len(obstacles))
         dt = times[None, :] - stamps[:, None]                                  # (n_o, K)
-        rel = pos[None, :, :] - (centers[:, None, :] + vel[:, None, :] * dt[..., None])
+        rel = pos[None, :, :] - centers[:, None, :d] - vel[:, None, :d] * dt[..., None]
         # bounding-circle lower bound of each pose's clearance; beyond release_margin the exact
         # clearance cannot change a decision
-        close = np.sqrt(np.einsum("okd,okd->ok", rel, rel)) - (bound + self.reach)[:, None] < self.cfg.release_margin
-        best = {False: [np.inf, ""], True: [np.inf, ""]}
-        near = np.any(close, axis=1)
+        close = np.sqrt(np.einsum("okd,okd->ok", rel, rel)) < (bound + self.reach + self.cfg.release_margin)[:, None]
+        near = close.any(axis=1)
         if movers_only:
             near &= moving
-        if not np.any(near):
-            return tuple(best[False]), tuple(best[True])
+        static, mover = [np.inf, ""], [np.inf, ""]
+        if not near.any():
+            return tuple(static), tuple(mover)
         discs = self._discs(pos, yaw)                                          # (K, n, d)
-        heading = self._heading(pos, yaw)                                      # (K, d) direction of travel
-        ahead = self._middle * heading                                         # reference point -> body middle
+        heading = None
         for i in np.flatnonzero(near):
-            o, mover = obstacles[i], bool(moving[i])
-            keep = close[i]
-            if mover and not behind:
-                # a mover counts only while it is ahead of the body's middle: one that closes in from
-                # behind does so by its own motion, and braking cannot avoid it
-                keep = keep & (np.einsum("kd,kd->k", rel[i] + ahead, heading) < 0.0)
-                if not np.any(keep):
-                    continue
-            pts = discs[keep]
-            if mover:
-                pts = pts - (vel[i] * dt[i][keep][:, None])[:, None, :]        # obstacle frozen at its stamp
-            gap = float(np.min(o.shape.signed_distance(pts.reshape(-1, d), centers[i], o.yaw))) - self.radius
-            if gap < best[mover][0]:
-                best[mover] = [gap, o.id]
-        return tuple(best[False]), tuple(best[True])
+            o, keep = obstacles[i], close[i]
+            if moving[i]:
+                if not behind:
+                    # a mover counts only while it is ahead of the body's middle: one that closes in
+                    # from behind does so by its own motion, and braking cannot avoid it
+                    if heading is None:
+                        heading = self._heading(pos, yaw)                      # (K, d) direction of travel
+                    keep = keep & (np.einsum("kd,kd->k", rel[i] + self._middle * heading, heading) < 0.0)
+                    if not keep.any():
+                        continue
+                pts = discs[keep] - (vel[i, :d] * dt[i][keep][:, None])[:, None, :]   # obstacle frozen at its stamp
+                best = mover
+            else:
+                pts, best = discs[keep], static
+            gap = float(o.shape.signed_distance(pts.reshape(-1, d), centers[i, :d], o.yaw).min()) - self.radius
+            if gap < best[0]:
+                best[0], best[1] = gap, o.id
+        return tuple(static), tuple(mover)
 
     def braking_meets_mover(self, state: np.ndarray, command: np.ndarray, obstacles: Sequence[ObstacleState],
                             t: float) -> str:
@@ -375,6 +377,12 @@ class GroundSupervisor(Supervisor):
         a2, t2 = (-self.a_brake, t_stop) if brake else (a1, max(t_stop, 1.0))
         t2, _, s2 = _run(v1, a2, t2)
         s_end = s1 + s2
+        if s_end <= self.cfg.max_step_m:           # (nearly) at rest: the pose now and the end pose
+            course = float(x[2])
+            chord = _chord(k1, s_end)
+            end = (x[0] + chord * math.cos(course + 0.5 * k1 * s_end), x[1] + chord * math.sin(course + 0.5 * k1 * s_end))
+            return (np.array([[x[0], x[1]], end]), np.array([x[2], x[2] + k1 * s_end]),
+                    np.array([0.0, t1 + t2]))
         n = int(min(self.cfg.samples, max(2, np.ceil(s_end / self.cfg.max_step_m) + 1)))
         s = np.arange(n) * (s_end / (n - 1))
         first = s <= s1
@@ -528,4 +536,4 @@ def _sinc(u: np.ndarray) -> np.ndarray:
 def _chord(kappa: float, s: float) -> float:
     """Chord length of an arc of curvature kappa and length s: s sinc(kappa s / 2)."""
     half = 0.5 * kappa * s
-    return s if abs(half) < 1e-6 else s * np.sin(half) / half
+    return s if abs(half) < 1e-6 else s * math.sin(half) / half
