@@ -50,7 +50,9 @@ class Rig:
         self.events: list[tuple[str, dict]] = []
         self.inp = PerceptionInput(self.daemon, VID, dim, max_age_s, limits, rate_hz,
                                    on_event=lambda kind, detail: self.events.append((kind, detail)))
-        self.pub = self.source.declare_publisher(KEY, encoding=zenoh.Encoding.APPLICATION_JSON)
+        # BLOCK: a burst must reach the input whole (Zenoh's default drops under congestion)
+        self.pub = self.source.declare_publisher(KEY, encoding=zenoh.Encoding.APPLICATION_JSON,
+                                                 congestion_control=zenoh.CongestionControl.BLOCK)
         assert wait_for(lambda: self.pub.matching_status.matching), "perception input never matched"
 
     def send(self, payload) -> None:
