@@ -67,7 +67,6 @@ class Counters:
     compute: TimingStats = field(default_factory=TimingStats)
     work: TimingStats = field(default_factory=TimingStats)
     supervise: TimingStats = field(default_factory=TimingStats)
-    overrides: int = 0
 
 
 class ControlLoop:
@@ -202,7 +201,6 @@ class ControlLoop:
         gs = self.guard.step(t, state, u, obstacles, self.controller, route_error=route_error)
         self.counters.supervise.add((time.perf_counter_ns() - s0) * 1e-9)
         v = gs.verdict
-        self.counters.overrides += v.override
         if v.engaged:
             self.event("supervisor_brake", reason=v.reason, obstacle=v.nearest, clearance_m=round(v.clearance, 3))
         elif v.released:

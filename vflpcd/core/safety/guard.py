@@ -22,7 +22,7 @@ from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.ports import PlanningController
 from vflpcd.core.safety.monitors import (MonitorConfig, Persistence, PlanLimits, PlanWatch, ResponseWatch,
                                          TrackingWatch)
-from vflpcd.core.safety.supervisor import GroundSupervisor, Supervisor, Verdict
+from vflpcd.core.safety.supervisor import Supervisor, Verdict
 
 REST_SPEED = 0.05     # m/s: below this the body counts as at rest
 CONTACT_CHECK_M = 0.05  # m: a predicted disc-cover clearance below which the exact contact is checked
@@ -30,13 +30,11 @@ CONTACT_CHECK_M = 0.05  # m: a predicted disc-cover clearance below which the ex
 
 @dataclass(frozen=True)
 class GuardStep:
-    """command (n_u,) to send; verdict: the supervisor's; trip: a failsafe reason or None;
-    contact: the exact clearance now (m) to the nearest known obstacle and its id."""
+    """command (n_u,) to send; verdict: the supervisor's; trip: a failsafe reason or None."""
 
     command: np.ndarray
     verdict: Verdict
     trip: str | None
-    contact: tuple[float, str]
 
 
 class SafetyGuard:
@@ -47,7 +45,6 @@ class SafetyGuard:
     def __init__(self, supervisor: Supervisor, monitors: MonitorConfig, plan_limits: PlanLimits,
                  period: float) -> None:
         self.supervisor, self.cfg = supervisor, monitors
-        self.ground = isinstance(supervisor, GroundSupervisor)
         self.plans = PlanWatch(monitors, plan_limits)
         self.tracking = TrackingWatch(monitors)
         self.response = ResponseWatch(monitors, period)
@@ -68,9 +65,7 @@ class SafetyGuard:
 
     def emergency(self, state: np.ndarray) -> np.ndarray:
         """The platform's emergency manoeuvre (brake, steering held / brake to hover and hold)."""
-        u = self.supervisor.emergency(state)
-        self.supervisor._sent(u)
-        return u
+        return self.supervisor.stop(state)
 
     def step(self, t: float, state: np.ndarray, command: np.ndarray, obstacles: Sequence[ObstacleState],
              controller=None, route_error: float = np.nan) -> GuardStep:
@@ -95,18 +90,18 @@ class SafetyGuard:
         bound = self.cfg.route_bound
         if self._planning:
             reason, distance = self.plans.update(t, controller.current_plan, controller.replans,
-                                                 controller.replan_failures, self._position(state))
+                                                 controller.replan_failures, sup.position(state))
             trip = trip or reason
             if controller.current_plan is not None:
                 route_error, bound = distance, self.cfg.tracking_bound
         trip = trip or self.tracking.update(t, route_error, bound)
-        trip = trip or self._response(t, state, verdict.command)
+        trip = trip or self.response.update(t, *sup.response_sample(state, verdict.command))
         trip = trip or self._blocked(t, state, verdict)
         if trip and not trip.startswith("collision") and self._defer(t, state, command, obstacles):
             trip = None
         elif not trip:
             self.deferred_since = None
-        return GuardStep(verdict.command, verdict, trip, contact)
+        return GuardStep(verdict.command, verdict, trip)
 
     def _defer(self, t: float, state: np.ndarray, command: np.ndarray, obstacles) -> bool:
         """Whether to put off giving up the mission because stopping now would leave the body in a
@@ -120,27 +115,8 @@ class SafetyGuard:
         return True
 
     # ------------------------------------------------------------------ pieces
-    def _position(self, state: np.ndarray) -> np.ndarray:
-        pos, _ = self.supervisor._pose_now(state)
-        return pos
-
-    def _speed(self, state: np.ndarray) -> float:
-        sup = self.supervisor
-        if self.ground:
-            return float(state[sup._idx[3]])
-        return float(np.linalg.norm(state[sup._v]))
-
-    def _response(self, t: float, state: np.ndarray, sent: np.ndarray) -> str | None:
-        sup = self.supervisor
-        if self.ground:
-            x = state[sup._idx]
-            delta = sup.delta if sup.delta is not None else 0.0
-            return self.response.update(t, x[3], x[3:4], sent[:1], x[5], x[3] * np.tan(delta) / sup.limits.wheelbase)
-        v = state[sup._v]
-        return self.response.update(t, float(np.linalg.norm(v)), v, sent)
-
     def _blocked(self, t: float, state: np.ndarray, verdict: Verdict) -> str | None:
-        held = self.held.update(t, verdict.override and self._speed(state) < REST_SPEED)
+        held = self.held.update(t, verdict.override and self.supervisor.speed(state) < REST_SPEED)
         if held is not None and held >= self.cfg.blocked_s:
             return f"blocked: held at rest by the safety supervisor for {held:.1f} s ({verdict.nearest} in the way)"
         return None

@@ -99,19 +99,17 @@ class Supervisor:
     prediction (``_poses``), body and emergency manoeuvre."""
 
     def __init__(self, config: SupervisorConfig, footprint: Footprint, period: float) -> None:
-        self.cfg, self.footprint, self.period = config, footprint, float(period)
+        self.cfg, self.period = config, float(period)
         self.reaction = self.period + config.latency_s
         self.offsets, self.radius = np.asarray(footprint.offsets, float), float(footprint.radius)
         self.reach = float(np.max(np.abs(self.offsets)) + self.radius)
         self._middle = float(np.mean(self.offsets))            # body middle ahead of the reference point (m)
-        self._radius_cache: dict[int, float] = {}
         self._far: dict[tuple, tuple[np.ndarray, float]] = {}     # large static obstacles: pose, distance
         self.reset()
 
     def reset(self) -> None:
         self.active = False
         self.interventions = 0
-        self.override_ticks = 0
 
     # ------------------------------------------------------------------ per tick
     def filter(self, state: np.ndarray, command: np.ndarray, obstacles: Sequence[ObstacleState], t: float) -> Verdict:
@@ -132,7 +130,6 @@ class Supervisor:
             reason = ("non-finite command" if not finite else
                       f"predicted clearance {clear:.2f} m to {nearest} under the command (margin {needed:g} m)")
         if override:
-            self.override_ticks += 1
             out = self.emergency(state)
         else:
             out = u
@@ -170,12 +167,11 @@ class Supervisor:
         reaction time, then the stop" (its length and duration bound it), shape (n_o,) bool: a lower
         bound of each one's distance from the body now (the exact signed distance for a large shape,
         whose bounding circle says little, else the bounding circle's), less its own motion."""
-        centers, vel, stamps, _ = arrays
+        centers, vel, stamps, _, bound = arrays
         distance, duration = self._extent(state, u)
         pos, _ = self._pose_now(state)
         d = pos.shape[0]
-        bound = np.array([self._bounding(o.shape) for o in obstacles])
-        gap = np.sqrt(np.sum((centers[:, :d] - pos) ** 2, axis=1)) - bound
+        gap = np.sqrt(np.sum((centers[:, :d] - pos) ** 2, axis=1)) - bound     # a copy: large shapes overwrite
         for i in np.flatnonzero(bound > LARGE_SHAPE_M):
             gap[i] = self._large_gap(obstacles[i], centers[i, :d], pos, vel[i])
         travel = np.sqrt(np.sum(vel[:, :d] ** 2, axis=1)) * np.maximum(np.abs(t + duration - stamps), np.abs(t - stamps))
@@ -186,7 +182,7 @@ class Supervisor:
         for a static one (less how far the body has moved since) while that leaves it far away."""
         if np.any(vel != 0.0):
             return float(o.shape.signed_distance(pos[None, :], center, o.yaw)[0])
-        key = (o.id, id(o.shape), float(center[0]), float(center[1]), o.yaw)
+        key = (o.id, o.shape, float(center[0]), float(center[1]), o.yaw)
         seen = self._far.get(key)
         if seen is not None:
             bound = seen[1] - float(np.sqrt(np.sum((pos - seen[0]) ** 2)))
@@ -202,12 +198,13 @@ class Supervisor:
         """Length (m) and duration (s) of the manoeuvre "u for the reaction time, then the stop"."""
         raise NotImplementedError
 
-    @staticmethod
-    def _arrays(obstacles: Sequence[ObstacleState]):
+    def _arrays(self, obstacles: Sequence[ObstacleState]):
+        """The obstacles as arrays, once per tick: centres, velocities, stamps, moving, bounding radii."""
         centers = np.array([o.center for o in obstacles], float)
         vel = np.array([o.velocity for o in obstacles], float)
         stamps = np.array([o.stamp for o in obstacles], float)
-        return centers, vel, stamps, np.any(vel != 0.0, axis=1)
+        bound = np.fromiter((self._bounding(o.shape) for o in obstacles), float, len(obstacles))
+        return centers, vel, stamps, np.any(vel != 0.0, axis=1), bound
 
     def _clearances(self, pos: np.ndarray, yaw: np.ndarray, times: np.ndarray, obstacles: Sequence[ObstacleState],
                     arrays, movers_only: bool = False, behind: bool = False) -> tuple[tuple[float, str], tuple[float, str]]:
@@ -215,8 +212,7 @@ class Supervisor:
         to the static and to the moving obstacles, each with the id that sets it (``behind``: also
         movers behind the body's middle)."""
         d = pos.shape[1]
-        centers, vel, stamps, moving = arrays
-        bound = np.fromiter((self._bounding(o.shape) for o in obstacles), float, len(obstacles))
+        centers, vel, stamps, moving, bound = arrays
         dt = times[None, :] - stamps[:, None]                                  # (n_o, K)
         rel = pos[None, :, :] - centers[:, None, :d] - vel[:, None, :d] * dt[..., None]
         # bounding-circle lower bound of each pose's clearance; beyond release_margin the exact
@@ -290,14 +286,9 @@ class Supervisor:
                 best, who = gap, o.id
         return best, who
 
-    def _bounding(self, shape) -> float:
-        key = id(shape)
-        r = self._radius_cache.get(key)
-        if r is None:
-            if len(self._radius_cache) > 4096:
-                self._radius_cache.clear()
-            r = self._radius_cache[key] = float(shape.bounding_radius())
-        return r
+    @staticmethod
+    def _bounding(shape) -> float:
+        return float(shape.bounding_radius())
 
     # ------------------------------------------------------------------ platform parts
     def _clip(self, u: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
@@ -312,6 +303,12 @@ class Supervisor:
     def emergency(self, state: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def stop(self, state: np.ndarray) -> np.ndarray:
+        """The emergency manoeuvre's command, as sent (after a failsafe, without a controller)."""
+        u = self.emergency(state)
+        self._sent(u)
+        return u
+
     def _brake_command(self, state: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         """The emergency manoeuvre's braking command from ``state``, without changing any state."""
         raise NotImplementedError
@@ -320,6 +317,19 @@ class Supervisor:
         raise NotImplementedError
 
     def _pose_now(self, state: np.ndarray) -> tuple[np.ndarray, float]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def position(self, state: np.ndarray) -> np.ndarray:
+        """The body's reference point (d,) in ``state``."""
+        return self._pose_now(np.asarray(state, float))[0]
+
+    def speed(self, state: np.ndarray) -> float:  # pragma: no cover - abstract
+        """The body's speed (m/s) in ``state``."""
+        raise NotImplementedError
+
+    def response_sample(self, state: np.ndarray, sent: np.ndarray) -> tuple:  # pragma: no cover - abstract
+        """What ``ResponseWatch.update`` compares after t: speed, the velocity whose rate is the
+        acceleration, the commanded acceleration, measured and commanded yaw rates (NaN: none)."""
         raise NotImplementedError
 
     def _release(self, state: np.ndarray) -> None:
@@ -408,6 +418,15 @@ class GroundSupervisor(Supervisor):
     def _heading(self, pos: np.ndarray, yaw: np.ndarray) -> np.ndarray:
         return np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
 
+    def speed(self, state: np.ndarray) -> float:
+        return float(state[self._idx[3]])
+
+    def response_sample(self, state: np.ndarray, sent: np.ndarray) -> tuple:
+        """v_x, [v_x], [a_x commanded], the yaw rate and v_x tan(delta) / L of the applied steering."""
+        x = state[self._idx]
+        delta = self.delta if self.delta is not None else 0.0
+        return x[3], x[3:4], sent[:1], x[5], x[3] * math.tan(delta) / self.limits.wheelbase
+
     def _discs(self, pos: np.ndarray, yaw: np.ndarray) -> np.ndarray:
         axis = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)                       # (K, 2)
         return pos[:, None, :] + self.offsets[None, :, None] * axis[:, None, :]
@@ -475,6 +494,14 @@ class AerialSupervisor(Supervisor):
 
     def _pose_now(self, state: np.ndarray) -> tuple[np.ndarray, float]:
         return state[self._p], 0.0
+
+    def speed(self, state: np.ndarray) -> float:
+        return float(np.linalg.norm(state[self._v]))
+
+    def response_sample(self, state: np.ndarray, sent: np.ndarray) -> tuple:
+        """|v|, v, the commanded acceleration; no yaw check."""
+        v = state[self._v]
+        return float(np.linalg.norm(v)), v, sent, np.nan, np.nan
 
     def _heading(self, pos: np.ndarray, yaw: np.ndarray) -> np.ndarray:
         step = np.diff(pos, axis=0, append=pos[-1:] + (pos[-1:] - pos[-2:-1] if len(pos) > 1 else 0.0))
