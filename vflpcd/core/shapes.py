@@ -140,6 +140,9 @@ class Shape:
 
     dim: ClassVar[int]
     kind: ClassVar[str]
+    #: "round" where the signed distance is |p| - bounding_radius(), "box" where it is the box
+    #: distance to support_extent(), "" otherwise (array code may then evaluate it in closed form)
+    closed_form: ClassVar[str] = ""
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -226,6 +229,7 @@ class Circle(Shape2D):
 
     radius: float
     kind: ClassVar[str] = "circle"
+    closed_form: ClassVar[str] = "round"
 
     def _sd_body(self, p):
         return np.hypot(p[:, 0], p[:, 1]) - self.radius
@@ -272,6 +276,7 @@ class Box(Shape2D):
     length: float
     width: float
     kind: ClassVar[str] = "box"
+    closed_form: ClassVar[str] = "box"
 
     def _sd_body(self, p):
         return _box_sd(np.abs(p) - self.support_extent())
@@ -302,6 +307,7 @@ class Sphere(Shape):
     radius: float
     dim: ClassVar[int] = 3
     kind: ClassVar[str] = "sphere"
+    closed_form: ClassVar[str] = "round"
 
     def _sd_body(self, p):
         return np.linalg.norm(p, axis=1) - self.radius
@@ -346,6 +352,7 @@ class Box3(Shape):
     height: float
     dim: ClassVar[int] = 3
     kind: ClassVar[str] = "box3"
+    closed_form: ClassVar[str] = "box"
 
     def _sd_body(self, p):
         return _box_sd(np.abs(p) - self.support_extent())

@@ -78,7 +78,7 @@ class SafetyGuard:
         verdict = sup.filter(state, command, obstacles, t)
         # the predicted clearance starts at the body's pose now and the disc cover contains the body:
         # only where it is (nearly) gone, or a mover may close in from behind, can there be contact
-        maybe = verdict.clearance <= CONTACT_CHECK_M or (verdict.clearance < 0.5 and any(o.moving for o in obstacles))
+        maybe = verdict.clearance <= CONTACT_CHECK_M or (verdict.clearance < 0.5 and verdict.movers)
         contact = sup.contact(state, obstacles, t) if maybe else (np.inf, "")
         trip = None
         if contact[0] <= 0.0:

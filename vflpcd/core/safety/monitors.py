@@ -26,6 +26,7 @@ and records a failsafe event.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,7 +88,8 @@ def nearest_on_polyline(p: np.ndarray, xy: np.ndarray) -> tuple[float, int]:
     a, ab = xy[:-1], np.diff(xy, axis=0)
     w = np.einsum("kd,kd->k", ab, ab)
     h = np.clip(np.einsum("kd,kd->k", p - a, ab) / np.maximum(w, 1e-12), 0.0, 1.0)
-    d2 = np.sum((a + h[:, None] * ab - p) ** 2, axis=1)
+    e = a + h[:, None] * ab - p
+    d2 = (e * e).sum(axis=1)
     i = int(np.argmin(d2))
     return float(np.sqrt(d2[i])), i
 
@@ -243,7 +245,8 @@ class ResponseWatch:
             return None
         measured = (self.vel[i] - self.vel[first]) / span
         commanded = (self.cmd.sum(axis=0) - self.cmd[i]) / (self.n - 1)    # the commands that acted over the span
-        gap = float(np.sqrt(np.sum((measured - commanded) ** 2)))
+        e = measured - commanded
+        gap = math.sqrt(float(e @ e))
         if gap > self.cfg.response_accel_tol:
             return (f"unresponsive: measured acceleration {np.round(measured, 2).tolist()} m/s^2 against "
                     f"{np.round(commanded, 2).tolist()} commanded over {span:.1f} s")

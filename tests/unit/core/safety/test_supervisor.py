@@ -107,6 +107,33 @@ def test_when_no_stop_is_possible_it_still_brakes_and_hits_slower():
     assert hit_sup is not None and hit_sup < 0.75 * hit_bare and n == 1
 
 
+def test_when_braking_cannot_stop_short_of_a_pedestrian_it_brakes_steering_away_and_hits_slower():
+    # a pedestrian steps out from the right 6.2 m ahead of the CoG at 25 km/h: braking alone meets them
+    def run(steering_choice):
+        plant, sup, body = car(6.944)
+        if not steering_choice:
+            sup._override = lambda state, u, obstacles, t: sup.emergency(state)
+        ped = obstacle("ped", Circle(0.4), [6.2, -1.8], velocity=(0.0, 1.5))
+        steer = []
+        least, impact, n = np.inf, None, 0
+        for k in range(int(3.0 / DT)):
+            t = k * DT
+            v = sup.filter(plant.state, np.array([0.0, 0.0]), [obstacle("ped", ped.shape, ped.center_at(t),
+                                                                        ped.velocity, t)], t)
+            assert not v.override or v.command[0] == -6.0                  # it always brakes fully
+            steer.append(v.command[1])
+            plant.step(v.command, DT)
+            gap = body.clearance(ped.shape, ped.center_at(t + DT), 0.0, plant.position(), plant.heading())
+            if gap <= 0.0 and impact is None:
+                impact = float(np.hypot(*plant.velocity_world()))
+        return impact, max(steer), sup.interventions
+    held, held_steer, _ = run(False)
+    swerved, steer, n = run(True)
+    assert held is not None and held_steer == 0.0
+    assert n == 1 and steer > 0.2                                      # away from the pedestrian's side
+    assert swerved is None or swerved < 0.5 * held
+
+
 def test_an_intervention_is_released_only_with_the_release_margin():
     plant, sup, _ = car(0.0)
     # the front disc reaches 0.69 m past the bumper (2.14 m ahead of the CoG): 0.05 m left, inside the margin
