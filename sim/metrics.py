@@ -46,8 +46,14 @@ def j_con(u_tilde: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 def j_mc(jl: np.ndarray, jh: np.ndarray, jc: np.ndarray) -> float:
-    """Weighted average motion-control cost J_MC over the M trajectory points."""
-    return float(np.mean(jl + jh + jc))
+    """Weighted average motion-control cost J_MC over the M trajectory points (NaN for none)."""
+    return _mean(jl + jh + jc)
+
+
+def _mean(x: np.ndarray) -> float:
+    """The mean, NaN (without a warning) for an empty array."""
+    x = np.asarray(x, float)
+    return float(x.mean()) if x.size else float("nan")
 
 
 def route_length(positions: np.ndarray) -> float:
@@ -78,7 +84,7 @@ def collision_count(clearance: np.ndarray) -> int:
 
 
 def rms(e: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.asarray(e, float) ** 2)))
+    return float(np.sqrt(_mean(np.asarray(e, float) ** 2)))
 
 
 def lateral_acceleration(t: np.ndarray, velocity: np.ndarray, v_min: float = 0.5) -> np.ndarray:
@@ -113,7 +119,7 @@ def summarize(*, t, positions, velocity, psi, psi_r, e_lat, u_tilde, t_cal, clea
     t_med, t_p99 = calc_time_stats(t_cal)
     clear = min_clearance(clearance)
     return {
-        "J_Lat": float(np.mean(jl)), "J_Heading": float(np.mean(jh)), "J_Con": float(np.mean(jc)),
+        "J_Lat": _mean(jl), "J_Heading": _mean(jh), "J_Con": _mean(jc),
         "J_MC": j_mc(jl, jh, jc), "L_p": route_length(positions), "t_com": t_com,
         "t_cal_median": t_med, "t_cal_p99": t_p99,
         "min_clearance": float(np.nanmin(clear)) if np.any(np.isfinite(clear)) else None,

@@ -14,8 +14,10 @@ kinematic bicycle on two arcs of constant curvature kappa = tan(delta) / L (clos
 reaction time the command's acceleration and the mean of the steering angle before and after its
 rate-limited move; then braking at ``decel_factor`` |a_min| with that steering held, to standstill.
 The applied steering angle is not measured: it is tracked from the commands sent, through the
-actuator's rate limit. Body: covering discs (``Footprint``). Emergency: a_x = a_min, steering held.
-
+actuator's rate limit. Body: covering discs (``Footprint``). Emergency: a_x = a_min, steering held;
+when that can no longer stop the car short of contact, a_x = a_min with the steering (held, the
+controller's, or full lock either way) whose prediction, the steering moving on at its rate limit
+through the stop, meets the obstacle at the lowest speed (or not at all).
 
 Quadrotor (state [X, Y, Z, vx, vy, vz, ...]; command the world acceleration, gravity excluded).
 Prediction: the clipped command for the reaction time, then a straight stop at ``decel_factor``
