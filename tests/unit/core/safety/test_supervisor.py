@@ -182,3 +182,17 @@ def test_a_quadrotor_flown_at_a_ball_brakes_to_hover_before_it_then_holds():
     assert np.linalg.norm(plant.velocity_world()) < 0.1
     assert np.linalg.norm(plant.position() - held) < 0.1                 # holds where it stopped
     assert abs(plant.position()[2] - 2.0) < 0.2 and sup.interventions >= 1
+
+
+def test_a_repeated_tick_at_rest_gives_the_same_verdict_and_a_changed_obstacle_a_new_one():
+    plant, sup, _ = car(0.0)
+    wall = obstacle("wall", Box(1.0, 10.0), [2.14 + 0.69 + 0.05 + 0.5, 0.0])
+    u = np.array([3.0, 0.0])
+    first = sup.predicted_clearance(plant.state, u, [wall], 0.0)
+    again = sup.predicted_clearance(plant.state, u, [obstacle("wall", wall.shape, wall.center, stamp=1.0)], 1.0)
+    assert again == first and first[0] < 0.1
+    moved = obstacle("wall", wall.shape, wall.center + np.array([0.3, 0.0]), stamp=2.0)
+    assert sup.predicted_clearance(plant.state, u, [moved], 2.0)[0] == pytest.approx(first[0] + 0.3, abs=1e-9)
+    walker = obstacle("walker", Circle(0.3), [5.0, 0.0], velocity=(-1.0, 0.0), stamp=3.0)
+    later = obstacle("walker", Circle(0.3), [4.0, 0.0], velocity=(-1.0, 0.0), stamp=4.0)
+    assert sup.predicted_clearance(plant.state, u, [later], 4.0) != sup.predicted_clearance(plant.state, u, [walker], 3.0)
