@@ -63,7 +63,7 @@ def open_bus(cfg: BusConfig) -> can.BusABC:
 
 
 def bus_config(t) -> BusConfig:
-    """The bus named by a ``[platform]`` table (``vflpcd.tomlread.Table``): ``interface`` and ``channel``
+    """The bus named by a ``[platform]`` table (``vflpcd.base.tomlread.Table``): ``interface`` and ``channel``
     (ConfigError naming the field)."""
     interface = t.string("interface", "socketcan", choices=INTERFACES)
     channel = t.string("channel", "vcan0")

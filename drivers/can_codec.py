@@ -22,7 +22,7 @@ from pathlib import Path
 import can
 import cantools
 
-from vflpcd.paths import config_dir
+from vflpcd.base.paths import config_dir
 
 FRAME_ERRORS = ("unknown_id", "dlc", "checksum", "range", "counter")
 COUNTER_MODULO = 16

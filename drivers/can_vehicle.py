@@ -353,8 +353,8 @@ def can_vehicle_from_scenario(scenario, options: dict, file=None, bus_log_stem: 
     """The CAN vehicle of a mission. ``options``: the mission's [platform] table without ``kind``
     (interface, channel, dbc, state_timeout, command_hold, bus_log); ``bus_log_stem``: the flight
     log's path, whose suffix becomes ``bus_log``'s."""
-    from sim.plants.dynamic_bicycle import BicycleConfig
-    from vflpcd.tomlread import Table
+    from vflpcd.config.vehicles import BicycleConfig
+    from vflpcd.base.tomlread import Table
 
     t = Table(options, file, "platform")
     t.check_known({"interface", "channel", "dbc", "state_timeout", "command_hold", "bus_log"})
@@ -381,7 +381,7 @@ def _resolve(name: str, mission_file) -> Path:
         if beside.exists():
             return beside
     if not path.exists():
-        from vflpcd.paths import config_dir
+        from vflpcd.base.paths import config_dir
 
         candidate = config_dir() / "can" / path
         if candidate.exists():

@@ -18,7 +18,7 @@ Life cycle, as a PX4 offboard application flies it:
 
 State (the quadrotor plant's order: X, Y, Z, vx, vy, vz, qw, qx, qy, qz, p, q, r): position and
 velocity from LOCAL_POSITION_NED, attitude from ATTITUDE_QUATERNION, body rates from ATTITUDE,
-each converted from NED/FRD to ENU/FLU (``drivers.frames``); ``origin`` is the ENU position of
+each converted from NED/FRD to ENU/FLU (``drivers.ned_enu``); ``origin`` is the ENU position of
 the autopilot's local origin in the mission's frame. The stamp is the receive time of the oldest
 part.
 
@@ -35,7 +35,7 @@ import time
 
 import numpy as np
 
-from drivers.frames import attitude_ned_to_enu, enu_to_ned, frd_to_flu, ned_to_enu
+from drivers.ned_enu import attitude_ned_to_enu, enu_to_ned, frd_to_flu, ned_to_enu
 from vflpcd.core.ports import StampedState
 
 log = logging.getLogger("drivers.mavlink_quad")
@@ -302,11 +302,11 @@ def route_mavsdk_log() -> None:
     log_subscribe(forward)
 
 
-def mavlink_quad_from_scenario(scenario, options: dict, file=None) -> MavlinkQuad:
+def mavlink_quad_from_scenario(scenario, options: dict, file=None, flight_log=None) -> MavlinkQuad:
     """The MAVLink quadrotor of a mission. ``options``: the mission's [platform] table without ``kind``
     (url, origin, takeoff_altitude, telemetry_timeout, health_timeout, takeoff_timeout, hold_s)."""
-    from sim.plants.quadrotor import QuadrotorParams
-    from vflpcd.tomlread import Table
+    from vflpcd.config.vehicles import QuadrotorParams
+    from vflpcd.base.tomlread import Table
 
     t = Table(options, file, "platform")
     t.check_known({"url", "origin", "takeoff_altitude", "telemetry_timeout", "health_timeout", "takeoff_timeout",

@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from vflpcd.core.angles import wrap_angle
-from vflpcd.errors import ConfigError
-from vflpcd.paths import config_dir
-from vflpcd.tomlread import Table, load_toml
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.paths import config_dir
+from vflpcd.base.tomlread import Table, load_toml
 from vflpcd.training.datasets import Log, save_log
 
 log = logging.getLogger("sim.collect")
@@ -96,7 +96,8 @@ def _hold_range(t: Table) -> tuple[float, float]:
 
 
 def _run_bicycle(cfg: CollectConfig, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, tuple, tuple]:
-    from sim.plants.dynamic_bicycle import BicycleConfig, DynamicBicycle
+    from sim.plants.dynamic_bicycle import DynamicBicycle
+    from vflpcd.config.vehicles import BicycleConfig
 
     t = cfg.bicycle
     plant_cfg = BicycleConfig.load(t.string("param_set"))
@@ -135,7 +136,8 @@ def _run_bicycle(cfg: CollectConfig, n: int, rng: np.random.Generator) -> tuple[
 
 
 def _run_quadrotor(cfg: CollectConfig, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, tuple, tuple]:
-    from sim.plants.quadrotor import Quadrotor, QuadrotorParams
+    from sim.plants.quadrotor import Quadrotor
+    from vflpcd.config.vehicles import QuadrotorParams
 
     t = cfg.quadrotor
     params = QuadrotorParams.from_toml()

@@ -7,22 +7,11 @@ from pathlib import Path
 import numpy as np
 
 from sim.runner import RunRecord
-from sim.scenarios import Scenario
+from vflpcd.config.scenarios import Scenario
 from vflpcd.core.angles import wrap_angle
-from vflpcd.core.shapes import Box, Box3, Circle, Cylinder, Ellipse, Ellipsoid, Sphere
+from vflpcd.core.shapes import top_view
 
 
-def top_view(shape):
-    """The 2-D outline shape of an obstacle seen from above."""
-    if isinstance(shape, (Circle, Ellipse, Box)):
-        return shape
-    if isinstance(shape, (Sphere, Cylinder)):
-        return Circle(shape.radius)
-    if isinstance(shape, Box3):
-        return Box(shape.length, shape.width)
-    if isinstance(shape, Ellipsoid):
-        return Ellipse(shape.a, shape.b)
-    raise TypeError(f"no top view for {type(shape).__name__}")
 
 
 def plot_run(record: RunRecord, scenario: Scenario, out: str | Path) -> Path:

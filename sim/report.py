@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from sim.runner import RunRecord
-from sim.scenarios import Scenario
+from vflpcd.config.scenarios import Scenario
 
 
 def _fmt(value, unit: str = "", scale: float = 1.0, digits: int = 3) -> str:

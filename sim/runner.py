@@ -25,13 +25,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sim.metrics import summarize
-from sim.obstacle_world import ObstacleWorld
+from vflpcd.core.obstacle_world import ObstacleWorld
 from sim.plants import make_plant
-from sim.scenarios import Scenario
+from vflpcd.config.scenarios import Scenario
 from vflpcd.core.path import progress_delta
 from vflpcd.core.ports import Controller
 from vflpcd.core.safety.guard import SafetyGuard
-from vflpcd.safety import guard_for
+from vflpcd.config.safety import guard_for
 
 REST_HOLD_S = 0.5      # after a failsafe, the run ends once the body has been at rest this long
 # `vflpcd sim`'s exit code per outcome (the daemon's codes: 3 the safety layer stopped it, 5 a collision)

@@ -27,14 +27,15 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.baselines import make_controller
+from vflpcd.controllers import make_controller
+from vflpcd.controllers.vflpc import load_params
 from sim.runner import run_closed_loop
-from sim.scenarios import load_scenario
+from vflpcd.config.scenarios import load_scenario
 from vflpcd.core.dynamics.compensation import KoopmanCompensation, OnlineCompensator
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
 from vflpcd.core.dynamics.sparse_gp import FITCGP, SEHyper, refit
 
-VELOCITIES = ("vx", "vy", "omega")
+SHIPPED = load_params("ground")      # the GP that vflpc_ml ships with ([compensation] of vflpc.toml)
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -51,7 +52,7 @@ def timings(model: LiftedLinearModel, seed: int = 0) -> dict:
     x = np.zeros(model.n_x)
     x[model.state_names.index("vx")] = 6.0
     t_lift = _median_time(lambda: model.lift(x), 2000)
-    n_z, n_y, m, n = 8, 3, 64, 300
+    n_z, n_y, m, n = 8, len(SHIPPED.gp_channels), SHIPPED.gp_m_max, SHIPPED.gp_n_max
     Z = rng.normal(size=(n, n_z))
     Y = np.column_stack([np.sin(Z[:, 0]) + 0.1 * Z[:, 1], np.cos(Z[:, 2]), Z[:, 3] * Z[:, 4]])
     Zm = Z[rng.choice(n, m, replace=False)]
@@ -88,7 +89,7 @@ def compensation_demo(model: LiftedLinearModel, seed: int = 0, learn_m: float = 
     e = np.where(np.std(u[:-1][learn], axis=0) > 1e-9, np.std(u[:-1][learn], axis=0), 1.0)
     A_s = model.A * d[None, :] / d[:, None]
     B_s = model.B * e[None, :] / d[:, None]
-    vel = [names.index(v) for v in VELOCITIES]
+    vel = [names.index(v) for v in SHIPPED.gp_channels]
     varying = [i for i in range(n_x, model.n_K) if np.ptp(U0[learn, i]) > 1e-9]  # encoder outputs, not the constant
     B_d = np.zeros((model.n_K, len(vel)))
     B_d[vel, range(len(vel))] = 1.0
@@ -97,7 +98,7 @@ def compensation_demo(model: LiftedLinearModel, seed: int = 0, learn_m: float = 
     n_z = comp.n_z
     hyp0 = SEHyper(sf2=np.maximum(np.var(targets.d, axis=0), 1e-8), ell=np.full(len(vel), np.sqrt(n_z)),
                    sn2=np.maximum(1e-2 * np.var(targets.d, axis=0), 1e-8))
-    online = OnlineCompensator(comp, hyp0, nu=0.05, m_max=64, n_max=300)
+    online = OnlineCompensator(comp, hyp0, nu=SHIPPED.gp_nu, m_max=SHIPPED.gp_m_max, n_max=SHIPPED.gp_n_max)
     for Ua, ua, Ub in zip(U0[learn] / d, u[:-1][learn] / e, U1[learn] / d):
         online.observe(Ua, ua, Ub)
     gp = online.refit()

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.baselines.hybrid_astar import HybridAStarParams, plan_scenario
-from sim.obstacle_world import ObstacleWorld
-from sim.scenarios import Scenario
+from vflpcd.controllers.hybrid_astar import HybridAStarParams, plan_scenario
+from vflpcd.core.obstacle_world import ObstacleWorld
+from vflpcd.config.scenarios import Scenario
 from vflpcd.core.guidance.planner import GuidancePlanner, Prepared
 from vflpcd.core.guidance.speed import menger_curvature
 

@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.baselines import make_controller
+from vflpcd.controllers import make_controller
 from sim.runner import RunRecord, run_closed_loop
-from sim.scenarios import Scenario, load_scenario
+from vflpcd.config.scenarios import Scenario, load_scenario
 
 NOMINAL = ("vflpc", "nmpc_cbf", "koopman_mpc", "pure_pursuit")
 EXACT = ("vflpc", "vflpc_ml")
@@ -118,7 +118,7 @@ def plot(nominal: list[Run], exact: list[Run], aerial: list[Run], scenario: Scen
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sim.plot import top_view
+    from vflpcd.core.shapes import top_view
 
     fig = plt.figure(figsize=(14, 10))
     ax = fig.add_subplot(2, 1, 1)

@@ -24,11 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.baselines import make_controller
+from vflpcd.controllers import make_controller
 from sim.runner import RunRecord, run_closed_loop
-from sim.scenarios import Scenario, load_scenario
+from vflpcd.config.scenarios import Scenario, load_scenario
 from vflpcd.core.safety.guard import REST_SPEED
-from vflpcd.paths import config_dir
+from vflpcd.base.paths import config_dir
 
 SCENES = ("wall_across", "narrow_turn", "pedestrian_close", "tight_gap", "dense_corridor")
 UNAVOIDABLE = ("pedestrian_close",)
@@ -92,7 +92,7 @@ def plot(rows: list[dict], scenes: dict[str, Scenario], out: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sim.plot import top_view
+    from vflpcd.core.shapes import top_view
 
     fig, axes = plt.subplots(len(scenes), 1, figsize=(12, 3.6 * len(scenes)))
     for ax, (name, sc) in zip(np.atleast_1d(axes), scenes.items()):
@@ -117,7 +117,7 @@ def plot(rows: list[dict], scenes: dict[str, Scenario], out: Path) -> Path:
 
 def bench_safety(out: Path, scenes: tuple[str, ...] = SCENES, controllers: tuple[str, ...] = CONTROLLERS) -> dict:
     logging.getLogger("vflpcd.core.vflpc").setLevel(logging.ERROR)     # replan failures are counted
-    logging.getLogger("sim.baselines").setLevel(logging.ERROR)
+    logging.getLogger("vflpcd.controllers").setLevel(logging.ERROR)
     loaded = {name: scene(name) for name in scenes}
     head = (f"{'scene':<17} {'controller':<13} {'supervisor':<10} {'outcome':<10} {'coll':>4} {'clear m':>8} "
             f"{'rest gap m':>10} {'interv':>6} {'impact m/s':>10}  failsafe")

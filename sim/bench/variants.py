@@ -1,6 +1,6 @@
 """`vflpcd bench variants`: VF-LPC on seeded road variants with moving obstacles.
 
-Each variant is a 160 m straight road at 25 km/h (``sim.scenarios.line_scenario_toml``, written
+Each variant is a 160 m straight road at 25 km/h (``vflpcd.config.scenarios.line_scenario_toml``, written
 to the output folder) with a pedestrian who starts crossing when the car is 20-35 m away
 (0.8-1.8 m/s, from either side, at 35-55 m), a slow car that drives off ahead (1-3 m/s, at
 75-90 m) and, in half of them, a static barrel between the two. Per seed it prints the outcome,
@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.lpc import make_vflpc
+from vflpcd.controllers.vflpc import make_vflpc
 from sim.runner import run_closed_loop
-from sim.scenarios import line_scenario_toml, load_scenario
+from vflpcd.config.scenarios import line_scenario_toml, load_scenario
 
 def variant_toml(seed: int) -> str:
     """The scenario TOML of variant ``seed``."""

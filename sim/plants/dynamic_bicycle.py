@@ -29,103 +29,13 @@ state after every step, as in the paper's model-uncertainty experiment.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from sim.plants.base import checked_vector
 from sim.plants.integrators import rk4_step, substeps
+from vflpcd.config.vehicles import CONTROL_NAMES, STATE_NAMES, BicycleConfig, BicycleParams
 from vflpcd.core.angles import wrap_angle
-from vflpcd.paths import config_dir
-from vflpcd.tomlread import Table, load_toml
-
-STATE_NAMES = ("X", "Y", "psi", "vx", "vy", "omega")
-CONTROL_NAMES = ("a_x", "delta_f")
-
-
-@dataclass(frozen=True)
-class BicycleParams:
-    """Inertial and tyre parameters (TABLE Vehicle Dynamic Parameters)."""
-
-    m: float
-    Iz: float
-    lf: float
-    lr: float
-    Caf: float
-    Car: float
-
-    @property
-    def wheelbase(self) -> float:
-        return self.lf + self.lr
-
-
-@dataclass(frozen=True)
-class BicycleLimits:
-    a_min: float
-    a_max: float
-    delta_max: float
-    delta_rate_max: float
-
-
-@dataclass(frozen=True)
-class BodySize:
-    """Outer dimensions; the CoG lies ``rear_overhang + lr`` behind the front bumper."""
-
-    length: float
-    width: float
-    rear_overhang: float
-
-
-@dataclass(frozen=True)
-class BicycleConfig:
-    """Everything the plant needs, read from ``config/plants/dynamic_bicycle.toml``."""
-
-    name: str
-    params: BicycleParams
-    limits: BicycleLimits
-    body: BodySize
-    v_kinematic: float
-    v_dynamic: float
-    tau_kinematic: float
-    max_step: float
-    process_noise_std: float
-
-    @classmethod
-    def load(cls, param_set: str = "nominal", path: str | Path | None = None) -> "BicycleConfig":
-        """Read parameter set ``param_set`` (e.g. "nominal", "exact") and the shared limits."""
-        path = Path(path) if path is not None else config_dir() / "plants" / "dynamic_bicycle.toml"
-        root = Table(load_toml(path), path)
-        root.check_known({"params", "limits", "low_speed", "integration", "body"})
-        sets = root.table("params")
-        if not sets.has(param_set):
-            raise sets.error(param_set, f"no such parameter set (have: {', '.join(sorted(sets.data))})")
-        p = sets.table(param_set)
-        p.check_known({"m", "Iz", "lf", "lr", "Caf", "Car"})
-        params = BicycleParams(**{k: p.number(k, positive=True) for k in ("m", "Iz", "lf", "lr", "Caf", "Car")})
-        lim = root.table("limits")
-        lim.check_known({"a_min", "a_max", "delta_max", "delta_rate_max"})
-        limits = BicycleLimits(
-            a_min=lim.number("a_min", max=0.0), a_max=lim.number("a_max", positive=True),
-            delta_max=lim.number("delta_max", positive=True, max=1.2),
-            delta_rate_max=lim.number("delta_rate_max", positive=True))
-        low = root.table("low_speed")
-        low.check_known({"v_kinematic", "v_dynamic", "tau_kinematic"})
-        v_kin = low.number("v_kinematic", positive=True)
-        v_dyn = low.number("v_dynamic", positive=True)
-        if v_dyn <= v_kin:
-            raise low.error("v_dynamic", f"expected a speed above v_kinematic ({v_kin:g}), got {v_dyn:g}")
-        integ = root.table("integration")
-        integ.check_known({"max_step", "process_noise_std"})
-        body = root.table("body")
-        body.check_known({"length", "width", "rear_overhang"})
-        return cls(
-            name=param_set, params=params, limits=limits,
-            body=BodySize(**{k: body.number(k, positive=True) for k in ("length", "width", "rear_overhang")}),
-            v_kinematic=v_kin, v_dynamic=v_dyn, tau_kinematic=low.number("tau_kinematic", positive=True),
-            max_step=integ.number("max_step", positive=True, max=0.05),
-            process_noise_std=integ.number("process_noise_std", min=0.0))
-
 
 def bicycle_derivative(x: np.ndarray, u: np.ndarray, p: BicycleParams,
                        v_kin: float, v_dyn: float, tau_kin: float) -> np.ndarray:

@@ -79,96 +79,13 @@ constructor signature and seeds ``self.rng`` only.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from sim.plants.base import checked_vector
 from sim.plants.integrators import rk4_step, substeps
+from vflpcd.config.vehicles import QUAD_CONTROL_NAMES, QUAD_STATE_NAMES, QuadrotorParams
 from vflpcd.core.angles import wrap_angle
-from vflpcd.paths import config_dir
-from vflpcd.tomlread import Table, load_toml
-
-Vec3 = tuple[float, float, float]
-
-_TABLE = "quadrotor"
-_FIELDS = {
-    "mass", "gravity", "inertia", "drag_coefficient", "thrust_to_weight",
-    "thrust_min_fraction", "tilt_max", "accel_max", "torque_max", "k_R", "k_Omega",
-    "max_step",
-}
-
-
-@dataclass(frozen=True)
-class QuadrotorParams:
-    """Physical parameters, limits and inner-loop gains (SI units, see the TOML file)."""
-
-    mass: float                   # kg
-    gravity: float                # m/s^2
-    inertia: Vec3                 # kg m^2, [Jxx, Jyy, Jzz]
-    drag_coefficient: float       # N s/m
-    thrust_to_weight: float       # max thrust / (m g)
-    thrust_min_fraction: float    # min thrust / (m g)
-    tilt_max: float               # rad
-    accel_max: float              # m/s^2, per axis
-    torque_max: Vec3              # N m, per axis
-    k_R: Vec3                     # N m / rad, per axis
-    k_Omega: Vec3                 # N m s / rad, per axis
-    max_step: float               # s, inner RK4 step
-
-    @property
-    def thrust_max(self) -> float:
-        """Maximum collective thrust, N."""
-        return self.thrust_to_weight * self.mass * self.gravity
-
-    @property
-    def thrust_min(self) -> float:
-        """Minimum collective thrust, N."""
-        return self.thrust_min_fraction * self.mass * self.gravity
-
-    @classmethod
-    def from_toml(cls, path: str | Path | None = None) -> "QuadrotorParams":
-        """Read the ``[quadrotor]`` table of ``path`` (default ``config_dir()/plants/quadrotor.toml``).
-
-        Raises ConfigError naming the file and the field on a missing, unknown or bad value.
-        """
-        path = Path(path) if path is not None else config_dir() / "plants" / "quadrotor.toml"
-        root = Table(load_toml(path), path)
-        root.check_known({_TABLE})
-        t = root.table(_TABLE)
-        t.check_known(_FIELDS)
-
-        def vec3(key: str) -> Vec3:
-            v = t.vector(key, 3)
-            if np.any(v <= 0.0):
-                raise t.error(key, f"expected 3 positive numbers, got {v.tolist()}")
-            return (float(v[0]), float(v[1]), float(v[2]))
-
-        ttw = t.number("thrust_to_weight", positive=True)
-        if ttw <= 1.0:
-            raise t.error("thrust_to_weight", f"expected a number > 1 (the vehicle must be able to hover), got {ttw:g}")
-        tmin = t.number("thrust_min_fraction", positive=True)
-        if tmin >= 1.0:
-            raise t.error("thrust_min_fraction", f"expected a number in (0, 1), got {tmin:g}")
-        tilt = t.number("tilt_max", positive=True)
-        if tilt >= 0.5 * math.pi:
-            raise t.error("tilt_max", f"expected an angle in (0, pi/2) rad, got {tilt:g}")
-        return cls(
-            mass=t.number("mass", positive=True),
-            gravity=t.number("gravity", positive=True),
-            inertia=vec3("inertia"),
-            drag_coefficient=t.number("drag_coefficient", min=0.0),
-            thrust_to_weight=ttw,
-            thrust_min_fraction=tmin,
-            tilt_max=tilt,
-            accel_max=t.number("accel_max", positive=True),
-            torque_max=vec3("torque_max"),
-            k_R=vec3("k_R"),
-            k_Omega=vec3("k_Omega"),
-            max_step=t.number("max_step", positive=True),
-        )
-
 
 def quat_to_rot(qv: np.ndarray) -> np.ndarray:
     """Rotation matrix (3, 3) of a unit quaternion [qw, qx, qy, qz] (4,), body -> world."""
@@ -196,8 +113,8 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 class Quadrotor:
     """Quadrotor plant commanded in world-frame acceleration (module docstring has the model)."""
 
-    state_names = ("X", "Y", "Z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "p", "q", "r")
-    control_names = ("ax", "ay", "az")
+    state_names = QUAD_STATE_NAMES
+    control_names = QUAD_CONTROL_NAMES
 
     def __init__(self, params: QuadrotorParams, x0: np.ndarray | None = None, seed: int | None = None) -> None:
         """params: the vehicle; x0: initial state (13,), (6,) or (7,) as for ``reset``

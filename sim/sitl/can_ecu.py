@@ -312,10 +312,10 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from drivers.can_bus import BusConfig, bus_config, open_bus
     from sim.plants import make_plant
-    from sim.plants.dynamic_bicycle import BicycleConfig
-    from vflpcd.errors import ConfigError
-    from vflpcd.mission import load_mission
-    from vflpcd.tomlread import Table
+    from vflpcd.config.vehicles import BicycleConfig
+    from vflpcd.base.errors import ConfigError
+    from vflpcd.config.mission import load_mission
+    from vflpcd.base.tomlread import Table
 
     def check(name: str, value: float, lo: float, hi: float) -> None:
         if not (lo <= value <= hi):

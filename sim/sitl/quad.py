@@ -47,7 +47,7 @@ import numpy as np
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402  (MAVLink 2 must be chosen before the import)
 
-from drivers.frames import attitude_enu_to_ned, enu_to_ned, flu_to_frd, ned_to_enu, quat_to_rot, yaw_ned_to_enu  # noqa: E402
+from drivers.ned_enu import attitude_enu_to_ned, enu_to_ned, flu_to_frd, ned_to_enu, quat_to_rot, yaw_ned_to_enu  # noqa: E402
 
 log = logging.getLogger("sim.sitl.quad")
 mav = mavutil.mavlink
@@ -96,7 +96,8 @@ class QuadSitl:
     def __init__(self, gcs_host: str = "127.0.0.1", gcs_port: int = 14540, *, physics_rate_hz: float = 250.0,
                  telemetry_rate_hz: float = 100.0, yaw_deg: float = 90.0, params: dict | None = None,
                  home=(47.397742, 8.545594, 488.0)) -> None:
-        from sim.plants.quadrotor import Quadrotor, QuadrotorParams
+        from sim.plants.quadrotor import Quadrotor
+        from vflpcd.config.vehicles import QuadrotorParams
 
         self.plant = Quadrotor(QuadrotorParams.from_toml(),
                                np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, yaw_ned_to_enu(math.radians(yaw_deg))]))
@@ -532,7 +533,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from vflpcd.errors import ConfigError
+    from vflpcd.base.errors import ConfigError
 
     def bad(option: str, message: str) -> ConfigError:
         return ConfigError("command line", option, message)

@@ -7,7 +7,7 @@ import pytest
 from pathlib import Path
 
 from loopback import free_port
-from sim.scenarios import line_scenario_toml
+from vflpcd.config.scenarios import line_scenario_toml
 
 
 def write_mission(folder: Path, *, route: str | None = None, length: float = 200.0, rate_hz: float = 50.0,

@@ -31,9 +31,9 @@ import numpy as np
 from canhub import can_hub
 from drivers.can_codec import VehicleCan
 from processes import Proc, descendants, wait_gone
-from sim.scenarios import load_scenario
-from vflpcd.flightlog import read_flight_log
-from vflpcd.paths import config_dir
+from vflpcd.config.scenarios import load_scenario
+from vflpcd.log.reader import read_flight_log
+from vflpcd.base.paths import config_dir
 
 MISSION = config_dir() / "missions" / "vehicle_can.toml"
 CMD, STATUS, INS_POSITION = 0x100, 0x200, 0x300

@@ -15,7 +15,7 @@ from canhub import can_hub
 from drivers.can_bus import af_can_available
 from drivers.can_codec import VehicleCan
 from processes import Proc
-from vflpcd.paths import config_dir
+from vflpcd.base.paths import config_dir
 
 DBC = config_dir() / "can" / "vehicle.dbc"
 

@@ -6,7 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-VFLPCD = [sys.executable, "-m", "vflpcd.cli"]
+VFLPCD = [sys.executable, "-m", "vflpcd.app.cli"]
 
 
 def test_sim_carsim_avoidance_pure_pursuit_stops_behind_the_supervisor(tmp_path):
@@ -108,7 +108,7 @@ def test_train_koopman_through_the_vflpcd_command(tmp_path):
                                     "--n-lift", "10", "--epochs", "3", "--windows-per-epoch", "256", "--no-compare",
                                     "--quiet", "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
-    from vflpcd.core.dynamics.koopman import load_koopman
+    from vflpcd.config.koopman_file import load_koopman
 
     model = load_koopman(out, state_names=("X", "Y", "psi", "vx", "vy", "omega"), control_names=("a_x", "delta_f"))
     assert model.n_K == 10

@@ -5,10 +5,10 @@ of the detection, the vehicle comes to rest, and the daemon exits with code 3.""
 import numpy as np
 import pytest
 
-from vflpcd.drill import Drill
-from vflpcd.flightlog import read_flight_log
-from vflpcd.mission import load_mission
-from vflpcd.run import run_mission
+from vflpcd.app.drill import Drill
+from vflpcd.log.reader import read_flight_log
+from vflpcd.config.mission import load_mission
+from vflpcd.app.run import run_mission
 
 RATE = 50.0
 PERIOD_NS = 1e9 / RATE

@@ -11,11 +11,11 @@ import time
 import numpy as np
 
 from loopback import zenoh_peer
-from vflpcd.flightlog import read_flight_log
-from vflpcd.mission import load_mission
-from vflpcd.run import run_mission
-from vflpcd.summary import clearances
-from sim.scenarios import line_scenario_toml
+from vflpcd.log.reader import read_flight_log
+from vflpcd.config.mission import load_mission
+from vflpcd.app.run import run_mission
+from vflpcd.log.summary import clearances
+from vflpcd.config.scenarios import line_scenario_toml
 
 KEY = "vflpc/t1/perception/obstacles"
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from vflpcd.flightlog import read_flight_log
+from vflpcd.log.reader import read_flight_log
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -63,7 +63,7 @@ def start_daemon(mission: Path, tmp_path: Path, *args: str, watchdog_usec: int =
     notify = NotifySocket(tmp_path / "notify.sock")
     env = dict(os.environ, NOTIFY_SOCKET=notify.path, WATCHDOG_USEC=str(watchdog_usec))
     env.pop("WATCHDOG_PID", None)
-    proc = subprocess.Popen([sys.executable, "-m", "vflpcd.cli", "run", str(mission), *args], cwd=ROOT, env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "vflpcd.app.cli", "run", str(mission), *args], cwd=ROOT, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     return proc, notify
 
@@ -147,7 +147,7 @@ def test_vehicle_mission_completes_in_real_time(port, tmp_path):
     mission = tmp_path / "vehicle.toml"
     mission.write_text(text.replace('dir = "logs"', f'dir = "{tmp_path / "logs"}"'))
     t0 = time.monotonic()
-    run = subprocess.run([sys.executable, "-m", "vflpcd.cli", "run", str(mission)], cwd=ROOT,
+    run = subprocess.run([sys.executable, "-m", "vflpcd.app.cli", "run", str(mission)], cwd=ROOT,
                          capture_output=True, text=True, timeout=180)
     wall = time.monotonic() - t0
     assert run.returncode == 0, run.stderr[-2000:]
@@ -157,14 +157,14 @@ def test_vehicle_mission_completes_in_real_time(port, tmp_path):
     assert 35.0 < log.t[-1] < 45.0 and wall > log.t[-1]          # real time, not faster
     assert log.overrun.sum() == 0
     png = tmp_path / "plot.png"
-    plot = subprocess.run([sys.executable, "-m", "vflpcd.cli", "plot", str(log.path), "--out", str(png)],
+    plot = subprocess.run([sys.executable, "-m", "vflpcd.app.cli", "plot", str(log.path), "--out", str(png)],
                           cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert plot.returncode == 0 and png.stat().st_size > 50_000, plot.stderr
 
 
 def test_bench_loop_prints_the_histograms_and_writes_json(mission_file, port, tmp_path):
     mission = mission_file(rate_hz=100.0, telemetry_port=port, compensation=True, executor="process")
-    run = subprocess.run([sys.executable, "-m", "vflpcd.cli", "bench", "loop", "--mission", str(mission),
+    run = subprocess.run([sys.executable, "-m", "vflpcd.app.cli", "bench", "loop", "--mission", str(mission),
                           "--duration", "5", "--out", str(tmp_path / "bench")], cwd=ROOT,
                          capture_output=True, text=True, timeout=120)
     assert run.returncode in (0, 1), run.stderr[-2000:]             # 1: an acceptance count failed

@@ -9,11 +9,11 @@ import time
 import numpy as np
 
 from loopback import zenoh_peer
-from sim.scenarios import line_scenario_toml
-from vflpcd.drill import Drill
-from vflpcd.flightlog import read_flight_log
-from vflpcd.mission import load_mission
-from vflpcd.run import run_mission
+from vflpcd.config.scenarios import line_scenario_toml
+from vflpcd.app.drill import Drill
+from vflpcd.log.reader import read_flight_log
+from vflpcd.config.mission import load_mission
+from vflpcd.app.run import run_mission
 
 RATE = 20.0
 KEY = "vflpc/t1/perception/obstacles"

@@ -38,7 +38,7 @@ def wait_ready(proc: subprocess.Popen, err: Path, timeout: float) -> None:
 def test_no_process_of_the_daemon_outlives_it(tmp_path, sig):
     err = tmp_path / "daemon.err"
     with open(err, "wb") as f:          # its own session: whatever it starts can be found by sid
-        proc = subprocess.Popen([sys.executable, "-m", "vflpcd.cli", "run", str(vehicle_mission(tmp_path))],
+        proc = subprocess.Popen([sys.executable, "-m", "vflpcd.app.cli", "run", str(vehicle_mission(tmp_path))],
                                 cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=f,
                                 start_new_session=True)
     sid = proc.pid

@@ -20,7 +20,7 @@ import numpy as np
 
 from drivers.can_codec import VehicleCan
 from loopback import free_port, free_udp_port
-from vflpcd.flightlog import read_flight_log
+from vflpcd.log.reader import read_flight_log
 
 ROOT = Path(__file__).resolve().parents[2]
 STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")

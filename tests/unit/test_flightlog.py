@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
-from vflpcd.daemon.recorder import FlightRecorder
-from vflpcd.daemon.records import Event, MissionHeader, ObstacleRecord, TickRecord
-from vflpcd.errors import ConfigError
-from vflpcd.flightlog import read_flight_log
-from vflpcd.logplot import main, plot_flight_log
+from vflpcd.log.writer import FlightRecorder
+from vflpcd.log.records import Event, MissionHeader, ObstacleRecord, TickRecord
+from vflpcd.base.errors import ConfigError
+from vflpcd.log.reader import read_flight_log
+from vflpcd.log.plot import main, plot_flight_log
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -17,11 +17,11 @@ import pytest
 from hypothesis import HealthCheck, event, given, note, settings
 from hypothesis import strategies as st
 
-from vflpcd.cli import main
-from vflpcd.errors import ConfigError
-from vflpcd.mission import build_controller, load_mission
-from vflpcd.paths import config_dir
-from vflpcd.run import build_platform
+from vflpcd.app.cli import main
+from vflpcd.base.errors import ConfigError
+from vflpcd.config.mission import build_controller, load_mission
+from vflpcd.base.paths import config_dir
+from vflpcd.app.run import build_platform
 
 ROOT = Path(__file__).resolve().parents[2]
 MISSIONS = sorted((config_dir() / "missions").glob("*.toml"))
@@ -430,7 +430,7 @@ def test_cli_run_port_in_use(tmp_path):
         s.listen(1)
         port = s.getsockname()[1]
         f = write_mission(tmp_path, **{"telemetry.listen": [f"tcp/127.0.0.1:{port}"]})
-        proc = subprocess.run([sys.executable, "-m", "vflpcd.cli", "run", str(f)], cwd=ROOT,
+        proc = subprocess.run([sys.executable, "-m", "vflpcd.app.cli", "run", str(f)], cwd=ROOT,
                               capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stderr
     assert "Traceback" not in proc.stderr

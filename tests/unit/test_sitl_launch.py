@@ -4,10 +4,10 @@ import sys
 
 import pytest
 
-from vflpcd.errors import ConfigError
-from vflpcd.mission import load_mission
-from vflpcd.paths import config_dir
-from vflpcd.sitl_launch import SitlProcesses
+from vflpcd.base.errors import ConfigError
+from vflpcd.config.mission import load_mission
+from vflpcd.base.paths import config_dir
+from vflpcd.app.sitl_launch import SitlProcesses
 
 MISSIONS = config_dir() / "missions"
 

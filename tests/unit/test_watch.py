@@ -8,10 +8,10 @@ import time
 
 import pytest
 
-from vflpcd.daemon.records import Event, TickRecord
+from vflpcd.log.records import Event, TickRecord
 from vflpcd.daemon.telemetry import TelemetryConfig, TelemetryPublisher, open_session
-from vflpcd.errors import ConfigError
-from vflpcd.watch import watch
+from vflpcd.base.errors import ConfigError
+from vflpcd.app.watch import watch
 from loopback import free_port
 
 VID = "rover-3"

@@ -39,7 +39,7 @@ import numpy as np
 
 __all__ = [
     "Shape", "Shape2D", "Circle", "Ellipse", "Box", "Sphere", "Ellipsoid", "Box3",
-    "Cylinder", "SHAPES_2D", "SHAPES_3D", "shape_from_table",
+    "Cylinder", "SHAPES_2D", "SHAPES_3D", "shape_from_table", "top_view",
 ]
 
 _BISECT_MAX_ITERS = 100  # bisection halvings (stops earlier once converged to 1 ulp)
@@ -387,6 +387,19 @@ class Cylinder(Shape):
 # --------------------------------------------------------------------------- registry
 SHAPES_2D: dict[str, type[Shape]] = {cls.kind: cls for cls in (Circle, Ellipse, Box)}
 SHAPES_3D: dict[str, type[Shape]] = {cls.kind: cls for cls in (Sphere, Ellipsoid, Box3, Cylinder)}
+
+
+def top_view(shape: Shape) -> Shape2D:
+    """The 2-D outline shape of an obstacle seen from above."""
+    if isinstance(shape, (Circle, Ellipse, Box)):
+        return shape
+    if isinstance(shape, (Sphere, Cylinder)):
+        return Circle(shape.radius)
+    if isinstance(shape, Box3):
+        return Box(shape.length, shape.width)
+    if isinstance(shape, Ellipsoid):
+        return Ellipse(shape.a, shape.b)
+    raise TypeError(f"no top view for {type(shape).__name__}")
 
 
 def shape_from_table(kind: str, sizes: dict[str, float]) -> Shape:

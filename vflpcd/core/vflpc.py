@@ -47,7 +47,6 @@ from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob, refit
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.obstacles import ObstacleState
-from vflpcd.tomlread import Table
 
 log = logging.getLogger("vflpcd.core.vflpc")
 
@@ -114,48 +113,14 @@ class VFLPCParams:
     refit_every: int = 100
     refit_min_samples: int = 60
     R_rate: np.ndarray | None = None
+    gp_channels: tuple[str, ...] = ("vx", "vy", "omega")
+    gp_ell: float = 3.0
+    gp_sf2: float = 0.05
+    gp_sn2: float = 1e-4
+    gp_nu: float = 0.05
+    gp_m_max: int = 48
+    gp_n_max: int = 400
 
-    @classmethod
-    def from_table(cls, root: Table, platform: str) -> "VFLPCParams":
-        root.check_known({"cost", "horizon", "solver", "features", "barrier", "replan", "compensation"})
-        cost, hor, sol = root.table("cost"), root.table("horizon"), root.table("solver")
-        feat, bar, rep = root.table("features"), root.table("barrier"), root.table("replan")
-        cost.check_known({"q_ground", "r_ground", "r_rate_ground", "q_aerial", "r_aerial", "r_rate_aerial", "q_lift",
-                          "gamma"})
-        hor.check_known({"seconds"})
-        sol.check_known({"i_max", "tol", "eta_a", "divergence"})
-        feat.check_known({"error_std_ground", "error_std_aerial", "samples", "size", "nu", "ell_factor", "seed"})
-        bar.check_known({"mu", "length", "l_safe", "max_threats"})
-        rep.check_known({"end_margin", "velocity_change"})
-        comp = root.table("compensation", {})
-        comp.check_known({"refit_every", "min_samples"})
-        q, r = cost.vector(f"q_{platform}"), cost.vector(f"r_{platform}")
-        if np.any(q < 0) or np.any(r <= 0):
-            raise cost.error(f"q_{platform}", "state weights must be >= 0 and control weights > 0")
-        r_rate = cost.vector(f"r_rate_{platform}", len(r)) if cost.has(f"r_rate_{platform}") else None
-        if r_rate is not None and np.any(r_rate <= 0):
-            raise cost.error(f"r_rate_{platform}", "increment weights must be > 0")
-        gamma = cost.number("gamma", min=0.0)
-        if not (0.0 < gamma <= 1.0):
-            raise cost.error("gamma", f"must lie in (0, 1], got {gamma}")
-        eta_a = sol.number("eta_a", positive=True)
-        if eta_a > 1.0:
-            raise sol.error("eta_a", f"must lie in (0, 1], got {eta_a}")
-        std = feat.vector(f"error_std_{platform}", len(q))
-        if np.any(std <= 0):
-            raise feat.error(f"error_std_{platform}", "must be positive")
-        return cls(Q_x=q, R=np.diag(r), q_lift=cost.number("q_lift", min=0.0), gamma=gamma,
-                   horizon_s=hor.number("seconds", positive=True), i_max=sol.integer("i_max", min=1),
-                   tol=sol.number("tol", min=0.0), eta_a=eta_a, divergence=sol.number("divergence", positive=True),
-                   error_std=std, samples=feat.integer("samples", min=1), size=feat.integer("size", min=1),
-                   nu=feat.number("nu", positive=True), ell_factor=feat.number("ell_factor", positive=True),
-                   seed=feat.integer("seed", min=0), mu=bar.number("mu", min=0.0),
-                   barrier_length=bar.number("length", positive=True), l_safe=bar.number("l_safe", min=0.0),
-                   max_threats=bar.integer("max_threats", min=0), end_margin=rep.number("end_margin", min=0.0),
-                   velocity_change=rep.number("velocity_change", positive=True),
-                   refit_every=comp.integer("refit_every", 100, min=1),
-                   refit_min_samples=comp.integer("min_samples", 60, min=1),
-                   R_rate=None if r_rate is None else np.diag(r_rate))
 
 
 class HorizonSolver(Protocol):

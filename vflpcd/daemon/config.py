@@ -1,5 +1,5 @@
 """The daemon's settings (the mission's [loop], [workers] and [failsafe] tables, validated by
-``vflpcd.mission``)."""
+``vflpcd.config.mission``)."""
 
 from __future__ import annotations
 

@@ -33,7 +33,7 @@ import time
 from dataclasses import dataclass
 
 from vflpcd.core.guidance.implicit import GuidanceError
-from vflpcd.daemon.control import COMPLETE, FAILSAFE, RUNNING, STOPPING, ControlLoop
+from vflpcd.daemon.control_loop import COMPLETE, FAILSAFE, RUNNING, STOPPING, ControlLoop
 from vflpcd.daemon.sdnotify import SystemdNotifier
 
 log = logging.getLogger("vflpcd.daemon")

@@ -27,9 +27,9 @@ from typing import Any
 
 import zenoh
 
-from vflpcd.daemon.records import json_bytes, Event, MissionHeader, TickRecord
-from vflpcd.errors import ConfigError
-from vflpcd.tomlread import Table
+from vflpcd.log.records import json_bytes, Event, MissionHeader, TickRecord
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.tomlread import Table
 
 log = logging.getLogger("vflpcd.daemon.telemetry")
 

@@ -18,7 +18,7 @@ Sources:
   (N, n_x), ``controls`` (N, n_u), ``dt`` (), ``state_names`` (n_x,), ``control_names``
   (n_u,), ``name`` () and the optional ``breaks`` (n_breaks,) int64.
 
-Bad input raises :class:`vflpcd.errors.ConfigError` naming the file and the field.
+Bad input raises :class:`vflpcd.base.errors.ConfigError` naming the file and the field.
 """
 
 from __future__ import annotations
@@ -31,9 +31,9 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from vflpcd.npzfile import write_npz
+from vflpcd.base.npzfile import write_npz
 
-from vflpcd.errors import ConfigError
+from vflpcd.base.errors import ConfigError
 
 log = logging.getLogger("vflpcd.training.datasets")
 

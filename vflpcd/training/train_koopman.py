@@ -78,9 +78,10 @@ from typing import Sequence
 
 import numpy as np
 
+from vflpcd.config.koopman_file import save_koopman
 from vflpcd.core.dynamics.koopman import ACTIVATION, KoopmanModel
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_physical, to_window_frame
-from vflpcd.errors import ConfigError
+from vflpcd.base.errors import ConfigError
 from vflpcd.training.datasets import Log, fingerprint, load_carsim, load_logs, split_by_log
 from vflpcd.training.dmdc import check_logs, robust_std
 from vflpcd.training.evaluate import open_loop_rmse
@@ -529,7 +530,7 @@ def main(argv: list[str] | None = None) -> int:
         return fail(str(exc))
     # the evaluation goes into the artifact's metadata (deterministic) and the manifest
     res.model.metadata["metrics"]["val_open_loop_rmse"] = _json_table(tables["koopman"])
-    res.model.save(args.out)
+    save_koopman(res.model, args.out)
     wall = time.perf_counter() - t0
     import torch
 

@@ -4,8 +4,8 @@ import cantools
 import numpy as np
 import pytest
 
-from sim.plants.dynamic_bicycle import BicycleConfig
-from vflpcd.paths import config_dir
+from vflpcd.config.vehicles import BicycleConfig
+from vflpcd.base.paths import config_dir
 
 DBC = config_dir() / "can" / "vehicle.dbc"
 

@@ -17,8 +17,8 @@ from vflpcd.daemon.perception import (
     DROPPED, REJECTED, MessageBudget, PerceptionError, PerceptionInput, PerceptionLimits, parse_message,
 )
 from vflpcd.daemon.telemetry import TelemetryConfig, open_session
-from vflpcd.errors import ConfigError
-from vflpcd.tomlread import Table
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.tomlread import Table
 from loopback import free_port, wait_for
 
 VID = "car-7"

@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from vflpcd.daemon.recorder import FlightRecorder, log_path
-from vflpcd.daemon.records import Event, MissionHeader, ObstacleRecord, TickRecord
-from vflpcd.errors import ConfigError
-from vflpcd.flightlog import read_flight_log
+from vflpcd.log.writer import FlightRecorder, log_path
+from vflpcd.log.records import Event, MissionHeader, ObstacleRecord, TickRecord
+from vflpcd.base.errors import ConfigError
+from vflpcd.log.reader import read_flight_log
 
-LOGGER = "vflpcd.daemon.recorder"
+LOGGER = "vflpcd.log.writer"
 REPO = Path(__file__).resolve().parents[3]
 
 
@@ -178,8 +178,8 @@ def test_log_path_names_vehicle_and_local_time(tmp_path):
 
 CHILD = textwrap.dedent("""
     import sys, time
-    from vflpcd.daemon.recorder import FlightRecorder
-    from vflpcd.daemon.records import MissionHeader, TickRecord
+    from vflpcd.log.writer import FlightRecorder
+    from vflpcd.log.records import MissionHeader, TickRecord
 
     header = MissionHeader("car1", "inproc", "vflpc", 2, 100.0, ("X", "Y", "psi"), ("a_x", "delta_f"),
                            ((0.0, 0.0), (10.0, 0.0)), (), "m.toml")

@@ -11,13 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.scenarios import line_scenario_toml
+from vflpcd.config.scenarios import line_scenario_toml
 from vflpcd.daemon.service import EXIT_NOT_AT_REST, EXIT_OK
-from vflpcd.drill import Drill
-from vflpcd.errors import ConfigError
-from vflpcd.flightlog import read_flight_log
-from vflpcd.mission import load_mission
-from vflpcd.run import run_mission
+from vflpcd.app.drill import Drill
+from vflpcd.base.errors import ConfigError
+from vflpcd.log.reader import read_flight_log
+from vflpcd.config.mission import load_mission
+from vflpcd.app.run import run_mission
 
 
 def mission(folder: Path, *, aerial: bool, platform: str = "", failsafe: str = "") -> Path:

@@ -11,13 +11,13 @@ import time
 import pytest
 import zenoh
 
-from vflpcd.daemon.records import Event, MissionHeader, ObstacleRecord, TickRecord
+from vflpcd.log.records import Event, MissionHeader, ObstacleRecord, TickRecord
 from vflpcd.daemon.telemetry import (
     PUBLISHED_TOPICS, TelemetryConfig, TelemetryPublisher, check_endpoint, check_vehicle_id, json_bytes,
     key_expressions, open_session,
 )
-from vflpcd.errors import ConfigError
-from vflpcd.tomlread import Table
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.tomlread import Table
 from loopback import free_port, wait_for
 
 VID = "car-7"

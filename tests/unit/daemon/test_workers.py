@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from processes import proc_info, wait_gone
-from sim.lpc import make_vflpc
+from vflpcd.controllers.vflpc import make_vflpc
 from sim.plants import make_plant
-from sim.scenarios import line_scenario_toml, load_scenario
+from vflpcd.config.scenarios import line_scenario_toml, load_scenario
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.vflpc import plan_job
 from vflpcd.daemon.workers import Workers

@@ -11,9 +11,9 @@ import pytest
 from drivers.can_bus import BusConfig
 from drivers.can_codec import FRAME_ERRORS, CounterSource, VehicleCan, checksum
 from drivers.can_vehicle import CanVehicle, can_vehicle_from_scenario
-from sim.plants.dynamic_bicycle import BicycleConfig
-from sim.scenarios import load_scenario
-from vflpcd.errors import ConfigError
+from vflpcd.config.vehicles import BicycleConfig
+from vflpcd.config.scenarios import load_scenario
+from vflpcd.base.errors import ConfigError
 
 LIMITS = BicycleConfig.load("nominal").limits
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from drivers.frames import (attitude_enu_to_ned, attitude_ned_to_enu, enu_to_ned, frd_to_flu, ned_to_enu,
+from drivers.ned_enu import (attitude_enu_to_ned, attitude_ned_to_enu, enu_to_ned, frd_to_flu, ned_to_enu,
                             quat_to_rot, rot_to_quat, yaw_enu_to_ned, yaw_ned_to_enu)
 
 

@@ -9,9 +9,9 @@ import pytest
 
 from loopback import free_udp_port
 from drivers.mavlink_quad import MavlinkQuad, mavlink_quad_from_scenario
-from sim.scenarios import load_scenario
+from vflpcd.config.scenarios import load_scenario
 from sim.sitl.quad import QuadSitl
-from vflpcd.errors import ConfigError
+from vflpcd.base.errors import ConfigError
 
 
 @pytest.fixture

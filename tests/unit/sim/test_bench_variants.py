@@ -3,7 +3,7 @@
 import numpy as np
 
 from sim.bench.variants import variant_toml
-from sim.scenarios import load_scenario
+from vflpcd.config.scenarios import load_scenario
 
 
 def test_variants_are_seeded_valid_and_move(tmp_path):

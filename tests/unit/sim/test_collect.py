@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from sim.collect import collect, main
-from sim.plants.dynamic_bicycle import BicycleConfig
-from sim.plants.quadrotor import QuadrotorParams
+from vflpcd.config.vehicles import BicycleConfig
+from vflpcd.config.vehicles import QuadrotorParams
 from vflpcd.training.datasets import load_log, load_logs
 
 

@@ -1,8 +1,10 @@
 import numpy as np
 import pytest
 
-from sim.plants.dynamic_bicycle import BicycleConfig, DynamicBicycle, bicycle_derivative
-from vflpcd.errors import ConfigError
+from sim.plants.dynamic_bicycle import DynamicBicycle, bicycle_derivative
+
+from vflpcd.config.vehicles import BicycleConfig
+from vflpcd.base.errors import ConfigError
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +126,7 @@ def test_unknown_parameter_set_names_the_field():
 
 
 def test_bad_parameter_file_names_file_and_field(tmp_path):
-    from vflpcd.paths import config_dir
+    from vflpcd.base.paths import config_dir
 
     text = (config_dir() / "plants" / "dynamic_bicycle.toml").read_text().replace("m = 2257.0", "m = -2257.0")
     f = tmp_path / "bike.toml"

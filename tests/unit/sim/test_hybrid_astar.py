@@ -6,16 +6,16 @@ import math
 import numpy as np
 import pytest
 
-from sim.baselines.hybrid_astar import (
+from vflpcd.controllers.hybrid_astar import (
     DUBINS_WORDS, HybridAStarParams, dubins_paths, dubins_shortest, plan_hybrid_astar, plan_scenario,
 )
 from vflpcd.core.footprint import Footprint
-from sim.plants.dynamic_bicycle import BicycleConfig
-from sim.scenarios import load_scenario
+from vflpcd.config.vehicles import BicycleConfig
+from vflpcd.config.scenarios import load_scenario
 from vflpcd.core.angles import wrap_angle
 from vflpcd.core.shapes import Box, Circle
-from vflpcd.errors import ConfigError
-from vflpcd.paths import config_dir
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.paths import config_dir
 
 BIKE = BicycleConfig.load("nominal")
 L, LR, DMAX = BIKE.params.wheelbase, BIKE.params.lr, BIKE.limits.delta_max

@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("osqp")
 
-from sim.baselines.koopman_mpc import OSQPHorizonSolver, benchmark  # noqa: E402
+from vflpcd.controllers.koopman_mpc import OSQPHorizonSolver, benchmark  # noqa: E402
 from vflpcd.core.control.problem import HorizonProblem, finite_horizon_lqr  # noqa: E402
 
 INF = np.inf

@@ -5,13 +5,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sim.baselines import make_controller
-from sim.baselines.nmpc_cbf import NmpcCbf, NmpcCbfConfig, obstacle_discs
+from vflpcd.controllers import make_controller
+from vflpcd.controllers.nmpc_cbf import NmpcCbf, NmpcCbfConfig, obstacle_discs
 from sim.runner import run_closed_loop
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.shapes import Box, Circle, Ellipse
-from vflpcd.errors import ConfigError
-from vflpcd.paths import config_dir
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.paths import config_dir
 
 BLOCK = """
 [[obstacles]]

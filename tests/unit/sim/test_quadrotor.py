@@ -9,9 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.plants.quadrotor import Quadrotor, QuadrotorParams
-from vflpcd.errors import ConfigError
-from vflpcd.paths import config_dir
+from sim.plants.quadrotor import Quadrotor
+
+from vflpcd.config.vehicles import QuadrotorParams
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.paths import config_dir
 
 DT = 0.02          # control step, s
 HOVER = np.array([0.0, 0.0, 2.0, 0.0, 0.0, 0.0])

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from sim.baselines import make_controller
+from vflpcd.controllers import make_controller
 from sim.runner import run_closed_loop
-from sim.scenarios import load_scenario
+from vflpcd.config.scenarios import load_scenario
 
 CORRIDOR_OBSTACLES = """
 [[obstacles]]

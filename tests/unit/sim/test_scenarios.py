@@ -5,11 +5,11 @@ import re
 import numpy as np
 import pytest
 
-from sim.obstacle_world import ObstacleWorld
-from sim.scenarios import available_scenarios, load_scenario
-from vflpcd.cli import main
-from vflpcd.errors import ConfigError
-from vflpcd.paths import config_dir
+from vflpcd.core.obstacle_world import ObstacleWorld
+from vflpcd.config.scenarios import available_scenarios, load_scenario
+from vflpcd.app.cli import main
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.paths import config_dir
 
 BASE = (config_dir() / "scenarios" / "dense_static.toml").read_text()
 

@@ -9,8 +9,8 @@ import pytest
 from drivers.can_codec import CounterSource, VehicleCan, checksum
 from loopback import wait_for
 from sim.plants import make_plant
-from sim.plants.dynamic_bicycle import BicycleConfig
-from sim.scenarios import load_scenario
+from vflpcd.config.vehicles import BicycleConfig
+from vflpcd.config.scenarios import load_scenario
 from sim.sitl.can_ecu import CanEcu
 
 SC = load_scenario("carsim_avoidance")

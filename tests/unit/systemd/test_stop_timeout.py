@@ -11,7 +11,7 @@ import pytest
 
 from vflpcd.daemon.config import FailsafePolicy
 from vflpcd.daemon.service import EXIT_BAD_INPUT, EXIT_COLLISION, EXIT_FAILSAFE, EXIT_NOT_AT_REST
-from vflpcd.mission import load_mission
+from vflpcd.config.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[3]
 UNIT = ROOT / "systemd" / "vflpcd@.service"

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import vflpcd
-from vflpcd.errors import ConfigError
+from vflpcd.base.errors import ConfigError
 from vflpcd.training.datasets import (CARSIM_CONTROLS, CARSIM_STATES, Log, fingerprint, load_carsim, load_log,
                                       load_logs, save_log, split_by_log)
 

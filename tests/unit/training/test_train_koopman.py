@@ -7,7 +7,7 @@ import pytest
 
 torch = pytest.importorskip("torch", reason="torch is not installed (pip install '.[train]')")
 
-from vflpcd.core.dynamics.koopman import load_koopman  # noqa: E402
+from vflpcd.config.koopman_file import load_koopman  # noqa: E402
 from vflpcd.training.datasets import Log, save_log  # noqa: E402
 from vflpcd.training.dmdc import fit_dmdc  # noqa: E402
 from vflpcd.training.train_koopman import TrainConfig, main, train_koopman, validation_mse  # noqa: E402

@@ -19,7 +19,6 @@ the result over and replays the samples that arrived meanwhile.
 
 from __future__ import annotations
 
-import threading
 from collections import deque
 from typing import NamedTuple
 
@@ -132,8 +131,8 @@ class OnlineCompensator:
     nu, m_max: ALD threshold and dictionary cap (= number of inducing points); n_max: training
     buffer length; ald_ell: ALD kernel length scale (default min(hyp0.ell); ALD uses sf2 = 1,
     so nu is relative). Refit options (optimise, bounds, jitter, max_cond) go to ``refit``.
-    ``observe`` and ``refit`` may run on different threads: the hand-over is one assignment
-    under a lock, and samples observed during a refit are replayed into the new model.
+    Every call comes from the owner's thread; a refit runs elsewhere (a worker) on the snapshot
+    that ``refit_job`` takes, and ``install`` replays into its model the samples observed meanwhile.
     """
 
     def __init__(self, comp: KoopmanCompensation, hyp0: SEHyper, *, nu: float = 1e-2,
@@ -148,7 +147,6 @@ class OnlineCompensator:
         self._buffer: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=n_max)
         self._seq = 0
         self._model: FITCGP | None = None
-        self._lock = threading.Lock()
         self._refit_kw = dict(optimise=optimise, bounds=bounds, jitter=jitter, max_cond=max_cond)
         self.dropped = 0          # non-finite samples never fed to the GP
 
@@ -170,16 +168,15 @@ class OnlineCompensator:
             self.dropped += pairs.dropped
             return False
         z, d = pairs.z[0], pairs.d[0]
-        with self._lock:
-            self._seq += 1
-            self._buffer.append((self._seq, z, d))
-            self.dictionary.consider(z, tag=self._seq)
-            if self._model is not None:
-                self._model = self._model.add_sample(z, d)
+        self._seq += 1
+        self._buffer.append((self._seq, z, d))
+        self.dictionary.consider(z, tag=self._seq)
+        if self._model is not None:
+            self._model = self._model.add_sample(z, d)
         return True
 
     def refit(self) -> FITCGP | None:
-        """Worker call: hyper-parameters + FITC posterior on the buffer with the dictionary as
+        """Refit now, on this thread: hyper-parameters + FITC posterior on the buffer with the dictionary as
         inducing inputs. On an ill-conditioned result the previous model is kept (logged by
         ``sparse_gp.refit``). Returns the model now current."""
         job = self.refit_job()
@@ -189,21 +186,19 @@ class OnlineCompensator:
 
     def refit_job(self) -> RefitJob | None:
         """A snapshot for ``refit_job`` (None while the buffer or the dictionary is empty)."""
-        with self._lock:
-            if not self._buffer or self.dictionary.m == 0:
-                return None
-            prev = self._model
-            return RefitJob(self._seq, self.dictionary.points, np.array([s[1] for s in self._buffer]),
-                            np.array([s[2] for s in self._buffer]), prev,
-                            prev.hyp if prev is not None else self.hyp0, dict(self._refit_kw))
+        if not self._buffer or self.dictionary.m == 0:
+            return None
+        prev = self._model
+        return RefitJob(self._seq, self.dictionary.points, np.array([s[1] for s in self._buffer]),
+                        np.array([s[2] for s in self._buffer]), prev,
+                        prev.hyp if prev is not None else self.hyp0, dict(self._refit_kw))
 
     def install(self, job: RefitJob, new: FITCGP | None) -> FITCGP | None:
         """Hand a refit's model over, with the samples observed since its snapshot folded in.
         Returns the model now current."""
-        with self._lock:
-            if new is not job.prev and new is not None:
-                for seq, z, d in self._buffer:           # samples that arrived meanwhile
-                    if seq > job.seq0:
-                        new = new.add_sample(z, d)
-                self._model = new
-            return self._model
+        if new is not job.prev and new is not None:
+            for seq, z, d in self._buffer:           # samples that arrived meanwhile
+                if seq > job.seq0:
+                    new = new.add_sample(z, d)
+            self._model = new
+        return self._model

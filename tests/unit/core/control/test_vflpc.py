@@ -5,9 +5,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sim.lpc import make_vflpc
+from vflpcd.controllers.vflpc import make_vflpc
 from sim.plants import make_plant
-from sim.scenarios import load_scenario
+from vflpcd.config.scenarios import load_scenario
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.shapes import Circle
 

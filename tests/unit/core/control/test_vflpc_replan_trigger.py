@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sim.lpc import make_vflpc
+from vflpcd.controllers.vflpc import make_vflpc
 from sim.plants import make_plant
-from sim.scenarios import load_scenario
+from vflpcd.config.scenarios import load_scenario
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.shapes import Circle
 from vflpcd.core.vflpc import plan_job

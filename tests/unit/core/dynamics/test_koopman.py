@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vflpcd.core.dynamics.koopman import KoopmanModel, load_koopman
-from vflpcd.errors import ConfigError
-from vflpcd.paths import config_dir
+from vflpcd.config.koopman_file import load_koopman, save_koopman
+from vflpcd.core.dynamics.koopman import KoopmanModel
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.paths import config_dir
 
 NAMES = ("X", "Y", "psi", "vx", "vy", "omega")
 CONTROLS = ("a_x", "delta_f")
@@ -44,7 +45,7 @@ def rewrite(src: Path, dst: Path, change) -> Path:
 
 def test_numpy_round_trip_and_lift_layout(tmp_path):
     m = random_model()
-    path = m.save(tmp_path / "m.npz")
+    path = save_koopman(m, tmp_path / "m.npz")
     got = load_koopman(path, state_names=NAMES, control_names=CONTROLS)
     assert got.n_K == 10 and got.n_x == 6 and got.n_u == 2 and got.n_encoder == 3
     np.testing.assert_array_equal(got.A, m.A)
@@ -57,7 +58,7 @@ def test_numpy_round_trip_and_lift_layout(tmp_path):
     assert got.metadata["n_K"] == 10 and got.metadata["activation"] == "tanh"
     assert got.metadata["fingerprint"] == "abc"
     # identical models give identical bytes
-    assert m.save(tmp_path / "again.npz").read_bytes() == path.read_bytes()
+    assert save_koopman(m, tmp_path / "again.npz").read_bytes() == path.read_bytes()
 
 
 def test_torch_network_and_numpy_model_predict_the_same(tmp_path):
@@ -74,7 +75,7 @@ def test_torch_network_and_numpy_model_predict_the_same(tmp_path):
     stats = {"x_mean": rng.normal(size=6), "x_std": rng.uniform(0.3, 3.0, 6),
              "u_mean": rng.normal(size=2), "u_std": rng.uniform(0.3, 3.0, 2)}
     model = export_model(net, stats, NAMES, CONTROLS, 0.05, {"fingerprint": "f", "metrics": {}})
-    loaded = load_koopman(model.save(tmp_path / "k.npz"), state_names=NAMES, control_names=CONTROLS)
+    loaded = load_koopman(save_koopman(model, tmp_path / "k.npz"), state_names=NAMES, control_names=CONTROLS)
     x0 = rng.normal(size=(16, 6)) * stats["x_std"] + stats["x_mean"]
     for H in (1, 20):
         u = rng.normal(size=(16, H, 2)) * stats["u_std"] + stats["u_mean"]
@@ -100,7 +101,7 @@ def test_torch_network_and_numpy_model_predict_the_same(tmp_path):
     ("A", lambda a: a["A"].__setitem__((-1, 0), 0.5)),
 ])
 def test_bad_artifacts_name_the_key(tmp_path, key, change):
-    good = random_model().save(tmp_path / "good.npz")
+    good = save_koopman(random_model(), tmp_path / "good.npz")
     bad = rewrite(good, tmp_path / "bad.npz", change)
     with pytest.raises(ConfigError) as err:
         load_koopman(bad)
@@ -108,7 +109,7 @@ def test_bad_artifacts_name_the_key(tmp_path, key, change):
 
 
 def test_layout_mismatch_and_missing_file(tmp_path):
-    path = random_model().save(tmp_path / "m.npz")
+    path = save_koopman(random_model(), tmp_path / "m.npz")
     with pytest.raises(ConfigError) as err:
         load_koopman(path, state_names=("X", "Y", "yaw", "vx", "vy", "omega"))
     assert err.value.field == "state_names"

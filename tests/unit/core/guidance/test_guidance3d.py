@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from sim.obstacle_world import ObstacleWorld
-from sim.scenarios import load_scenario
+from vflpcd.core.obstacle_world import ObstacleWorld
+from vflpcd.config.scenarios import load_scenario
 from vflpcd.core.guidance.field3d import GraphPath3D
 from vflpcd.core.guidance.planner3d import GuidancePlanner3D
 from vflpcd.core.guidance.speed import menger_curvature

@@ -5,22 +5,22 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sim.scenarios import load_scenario
+from vflpcd.config.scenarios import load_scenario
 from vflpcd.core.guidance.grid import FieldGrid, integrate
 from vflpcd.core.guidance.implicit import GuidanceError
-from vflpcd.core.guidance.params import GuidanceParams
+from vflpcd.config.params import guidance_params
 from vflpcd.core.guidance.planner import GuidancePlanner
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
 from vflpcd.core.shapes import Box, Circle, Ellipse
-from vflpcd.errors import ConfigError
-from vflpcd.paths import config_dir
-from vflpcd.tomlread import Table, load_toml
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.paths import config_dir
+from vflpcd.base.tomlread import Table, load_toml
 
 
 @pytest.fixture(scope="module")
 def params():
-    return GuidanceParams.from_table(Table(load_toml(config_dir() / "guidance.toml"), "guidance.toml"))
+    return guidance_params(Table(load_toml(config_dir() / "guidance.toml"), "guidance.toml"))
 
 
 def static(oid, shape, x, y, yaw=0.0):
@@ -163,12 +163,12 @@ def test_bad_guidance_parameters_are_named(tmp_path):
                             ('virtual = "off"', 'virtual = "sometimes"', "virtual")):
         t = Table(__import__("tomllib").loads(text.replace(old, new)), "g.toml")
         with pytest.raises(ConfigError, match=f"g.toml: {field}:"):
-            GuidanceParams.from_table(t)
-    base = GuidanceParams.from_table(Table(__import__("tomllib").loads(text), "g.toml"))
+            guidance_params(t)
+    base = guidance_params(Table(__import__("tomllib").loads(text), "g.toml"))
     t = Table({"virtual_obstacles": [{"center": [1.0, 2.0], "radius": 3.0, "c": 0.2, "parent": "x"}]}, "s.toml",
               "guidance")
     with pytest.raises(ConfigError, match=r"guidance.virtual_obstacles\[0\].c: .*c_i < 0"):
-        GuidanceParams.from_table(t, base)
+        guidance_params(t, base)
 
 
 def test_dense_static_plan_is_safe_and_timed(params):
@@ -227,7 +227,7 @@ gamma = 1
     (v,) = prepared.field.virtuals
     assert v.implicit.center == pytest.approx([5.0, -6.0]) and v.implicit.c == -0.2 and v.gamma == 1.0
     assert v.parent.name == "c1"
-    bad = GuidanceParams.from_table(Table({"virtual_obstacles": [
+    bad = guidance_params(Table({"virtual_obstacles": [
         {"center": [5.0, -6.0], "radius": 5.0, "c": -0.2, "parent": "nobody"}]}, "s.toml", "guidance"), s.guidance)
     with pytest.raises(GuidanceError, match="parent 'nobody'"):
         GuidancePlanner(s.path, bad, 3.0, 2.0, 1.25, 0.05).prepare(0.0, [static("c1", Circle(1.0), 8.0, 1.2)])

@@ -2,7 +2,7 @@
 
 import pytest
 
-from sim.scenarios import line_scenario_toml, load_scenario
+from vflpcd.config.scenarios import line_scenario_toml, load_scenario
 
 
 @pytest.fixture

@@ -9,7 +9,7 @@ from vflpcd.core.ports import PlanningController
 from vflpcd.core.safety.guard import SafetyGuard
 from vflpcd.core.safety.monitors import MonitorConfig, PlanLimits
 from vflpcd.core.shapes import Box, Circle
-from vflpcd.safety import guard_for, safety_settings
+from vflpcd.config.safety import guard_for, safety_settings
 
 STATE_NAMES = ("X", "Y", "psi", "vx", "vy", "omega")
 

@@ -4,8 +4,11 @@ commands through, and handles movers, impossible stops and the quadrotor's hold.
 import numpy as np
 import pytest
 
-from sim.plants.dynamic_bicycle import BicycleConfig, DynamicBicycle
-from sim.plants.quadrotor import Quadrotor, QuadrotorParams
+from sim.plants.dynamic_bicycle import DynamicBicycle
+
+from vflpcd.config.vehicles import BicycleConfig
+from sim.plants.quadrotor import Quadrotor
+from vflpcd.config.vehicles import QuadrotorParams
 from vflpcd.core.footprint import Footprint
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.safety.supervisor import (AerialSupervisor, CarLimits, GroundSupervisor, QuadLimits,

@@ -37,11 +37,11 @@ from vflpcd.daemon.config import FailsafePolicy, LoopConfig, WorkerConfig
 from vflpcd.daemon.failsafe import FailsafeMonitor
 from vflpcd.daemon.progress import Progress
 from vflpcd.daemon.ratekeeper import ManualGC, RateKeeper, set_realtime
-from vflpcd.daemon.records import Event, ObstacleRecord, TickRecord
+from vflpcd.log.records import Event, ObstacleRecord, TickRecord
 from vflpcd.daemon.stats import TimingStats
 from vflpcd.daemon.workers import Workers
 
-log = logging.getLogger("vflpcd.daemon.control")
+log = logging.getLogger("vflpcd.daemon.control_loop")
 
 RUNNING, FAILSAFE, COMPLETE, STOPPING = "running", "failsafe", "complete", "stopping"
 
@@ -75,7 +75,7 @@ class ControlLoop:
     ``obstacles(t, state)``: the mission's obstacles at mission time t (list of ObstacleState);
     ``perception``: an object with ``snapshot(now_unix, t)`` or None; ``progress``: the path goal
     or None (then the mission runs until stopped); ``guard``: the safety guard every command passes
-    (``vflpcd.safety.guard_for``), or None.
+    (``vflpcd.config.safety.guard_for``), or None.
     """
 
     def __init__(self, platform, controller, loop: LoopConfig, workers_cfg: WorkerConfig,

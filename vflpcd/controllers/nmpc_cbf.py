@@ -102,14 +102,14 @@ import casadi as ca
 import numpy as np
 
 from vflpcd.core.footprint import Footprint
-from sim.plants.dynamic_bicycle import BicycleConfig, BicycleParams
+from vflpcd.config.vehicles import BicycleConfig, BicycleParams
 from vflpcd.core.angles import wrap_angle
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
 from vflpcd.core.shapes import Circle
-from vflpcd.errors import ConfigError
-from vflpcd.paths import config_dir
-from vflpcd.tomlread import Table, load_toml
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.paths import config_dir
+from vflpcd.base.tomlread import Table, load_toml
 
 log = logging.getLogger(__name__)
 
@@ -515,7 +515,7 @@ class NmpcCbf:
         return np.array([a, float(np.clip(d, self.u_min[1], self.u_max[1]))])
 
 
-def make_nmpc_cbf(scenario, config: NmpcCbfConfig | None = None) -> NmpcCbf:
+def make_nmpc_cbf(scenario, config: NmpcCbfConfig | None = None, **_) -> NmpcCbf:
     """The MPC-CBF controller for a ground scenario (config: default file when None)."""
     return NmpcCbf(scenario.path, scenario.v_desired, scenario.a_lat_max, scenario.control_period,
                    scenario.footprint, config if config is not None else NmpcCbfConfig.load())

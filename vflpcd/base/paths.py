@@ -15,4 +15,4 @@ def config_dir() -> Path:
     env = os.environ.get("VFLPCD_CONFIG_DIR")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parent.parent / "config"
+    return Path(__file__).resolve().parents[2] / "config"

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vflpcd.paths import config_dir
+from vflpcd.base.paths import config_dir
 
 EDGES_MS = (0.0, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0, np.inf)
 
@@ -54,9 +54,9 @@ class TelemetryCounter:
 
 
 def bench_loop(mission_path: Path | None, rate_hz: float, duration_s: float, executor: str | None, out: Path) -> int:
-    from vflpcd.flightlog import read_flight_log
-    from vflpcd.mission import load_mission
-    from vflpcd.run import run_mission
+    from vflpcd.log.reader import read_flight_log
+    from vflpcd.config.mission import load_mission
+    from vflpcd.app.run import run_mission
 
     mission = load_mission(mission_path or config_dir() / "missions" / "bench_loop.toml")
     if executor is not None:
@@ -102,7 +102,7 @@ def bench_loop(mission_path: Path | None, rate_hz: float, duration_s: float, exe
     }
     _print(figures)
     (out / "bench_loop.json").write_text(json.dumps(figures, indent=2))
-    from vflpcd.logplot import plot_flight_log
+    from vflpcd.log.plot import plot_flight_log
 
     png = plot_flight_log(log, out / "bench_loop.png")
     print(f"wrote {out / 'bench_loop.json'}\nwrote {png}")

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vflpcd.flightlog import FlightLog
+from vflpcd.log.reader import FlightLog
 
 
 def clearances(log: FlightLog, scenario) -> dict[str, float]:

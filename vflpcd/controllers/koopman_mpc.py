@@ -84,7 +84,7 @@ at eps_abs = eps_rel = 1e-5 is returned: cost within ~0.5 % of the optimum, u~ o
 Unconstrained problems match the finite-horizon LQR to < 1e-4 relative.
 
 :func:`benchmark` times warm-started solves on the shipped dynamic-bicycle Koopman model
-(``python -m sim.baselines.koopman_mpc``).
+(``python -m vflpcd.controllers.koopman_mpc``).
 """
 
 from __future__ import annotations
@@ -511,8 +511,8 @@ def bicycle_problem(rng: np.random.Generator, N: int = 20, m: int = 2, x0_scale:
     """
     import scipy.linalg as sla
 
-    from vflpcd.core.dynamics.koopman import load_koopman
-    from vflpcd.paths import config_dir
+    from vflpcd.config.koopman_file import load_koopman
+    from vflpcd.base.paths import config_dir
 
     path = model_path if model_path is not None else config_dir() / "models" / "dynamic_bicycle.npz"
     km = load_koopman(path)
@@ -583,3 +583,11 @@ if __name__ == "__main__":  # pragma: no cover
         for pa in (False, True):
             r = benchmark(closed_loop=cl, perturb_A=pa)
             print(f"closed_loop={cl!s:5} perturb_A={pa!s:5} " + " ".join(f"{k}={v:.3g}" for k, v in r.items()))
+
+
+def make_koopman_mpc(scenario, **options):
+    """VF-LPC's guidance and Koopman model with this OSQP horizon solver in place of Eb-RHRL."""
+    from vflpcd.controllers.vflpc import load_params, make_vflpc
+
+    return make_vflpc(scenario, solver=KoopmanMPC(load_params(scenario.platform).max_threats), name="koopman_mpc",
+                      **options)

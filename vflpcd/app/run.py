@@ -1,7 +1,7 @@
 """``vflpcd run``: a mission wired into the daemon (the composition root of a run).
 
 Builds, from a validated ``Mission``: the platform driver, the controller (VF-LPC by default) at
-the mission's rate, the safety guard between the two (``vflpcd.safety``), the mission's obstacles (``sim.obstacle_world``: static ones, and moving ones
+the mission's rate, the safety guard between the two (``vflpcd.config.safety``), the mission's obstacles (``vflpcd.core.obstacle_world``: static ones, and moving ones
 with their triggers), progress along the route, the workers, the flight recorder, the Zenoh
 telemetry and perception input, and the daemon; runs it and returns the outcome and the log.
 """
@@ -15,16 +15,16 @@ from pathlib import Path
 
 import numpy as np
 
-from vflpcd.daemon.control import ControlLoop, Sinks
+from vflpcd.daemon.control_loop import ControlLoop, Sinks
 from vflpcd.daemon.progress import Progress
-from vflpcd.daemon.records import MissionHeader
+from vflpcd.log.records import MissionHeader
 from vflpcd.daemon.service import Daemon, Outcome
-from vflpcd.drill import Drill, DrillController
-from vflpcd.errors import ConfigError
-from vflpcd.mission import Mission, build_controller
-from vflpcd.safety import guard_for
+from vflpcd.app.drill import Drill, DrillController
+from vflpcd.base.errors import ConfigError
+from vflpcd.config.mission import Mission, build_controller
+from vflpcd.config.safety import guard_for
 
-log = logging.getLogger("vflpcd.run")
+log = logging.getLogger("vflpcd.app.run")
 
 
 @dataclass
@@ -37,20 +37,9 @@ class RunResult:
 def build_platform(mission: Mission, flight_log: Path | None = None):
     """The mission's platform driver (ConfigError for bad options). ``flight_log``: the run's MCAP
     path; drivers that record their link (the CAN bus log) write beside it."""
-    kind, options = mission.platform.kind, mission.platform.options
-    if kind == "inproc":
-        from drivers.inproc import inproc_from_scenario
+    from drivers import make_platform
 
-        return inproc_from_scenario(mission.scenario, options, mission.file)
-    if kind == "can":
-        from drivers.can_vehicle import can_vehicle_from_scenario
-
-        return can_vehicle_from_scenario(mission.scenario, options, mission.file, flight_log)
-    if kind == "mavlink":
-        from drivers.mavlink_quad import mavlink_quad_from_scenario
-
-        return mavlink_quad_from_scenario(mission.scenario, options, mission.file)
-    raise ConfigError(mission.file, "platform.kind", f"no driver for platform kind {kind!r}")
+    return make_platform(mission.platform.kind, mission.scenario, mission.platform.options, mission.file, flight_log)
 
 
 def position_index(state_names) -> list[int]:
@@ -60,7 +49,7 @@ def position_index(state_names) -> list[int]:
 
 def mission_obstacles(scenario, state_names):
     """obstacles(t, state): the mission's obstacles at mission time t (triggers fire from the state)."""
-    from sim.obstacle_world import ObstacleWorld
+    from vflpcd.core.obstacle_world import ObstacleWorld
 
     world = ObstacleWorld(scenario.obstacles)
     index = position_index(state_names)
@@ -72,7 +61,7 @@ def mission_obstacles(scenario, state_names):
 
 
 def mission_header(mission: Mission, platform, controller) -> MissionHeader:
-    from sim.plot import top_view
+    from vflpcd.core.shapes import top_view
 
     sc = mission.scenario
     s = np.linspace(0.0, sc.path.length, max(2, int(sc.path.length / 0.5)))
@@ -94,7 +83,7 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
     control). ``rate_hz`` and ``log_dir`` override the mission's. Process workers are started by
     ``spawn``, which imports the main module again: a script that calls this needs the
     ``if __name__ == "__main__":`` guard (the ``vflpcd`` command has it)."""
-    from vflpcd.daemon.recorder import FlightRecorder, log_path
+    from vflpcd.log.writer import FlightRecorder, log_path
     from vflpcd.daemon.workers import Workers
 
     if rate_hz is not None:

@@ -15,13 +15,14 @@ from pathlib import Path
 import numpy as np
 
 from vflpcd.core.footprint import Footprint
-from sim.plants.dynamic_bicycle import BicycleConfig
+from vflpcd.config.vehicles import BicycleConfig
+from vflpcd.config.params import guidance_params
 from vflpcd.core.guidance.params import GuidanceParams
 from vflpcd.core.path import ReferencePath
 from vflpcd.core.shapes import SHAPES_2D, SHAPES_3D, shape_from_table
-from vflpcd.errors import ConfigError
-from vflpcd.paths import config_dir
-from vflpcd.tomlread import Table, load_toml
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.paths import config_dir
+from vflpcd.base.tomlread import Table, load_toml
 
 PLATFORMS = {"ground": ("dynamic_bicycle", 2, 2), "aerial": ("quadrotor", 3, 3)}  # plant, dim, n_u
 TRIGGERS = ("always", "move", "appear")
@@ -153,7 +154,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         goal_tolerance=goal.number("tolerance", 1.0, positive=True),
         laps=goal.integer("laps", 1, min=1), obstacles=obstacles,
         weights=MetricWeights(q1=metrics.number("q1", min=0.0), q2=metrics.number("q2", min=0.0), R=R),
-        footprint=footprint, guidance=GuidanceParams.from_table(root.table("guidance", {}), default_guidance()))
+        footprint=footprint, guidance=guidance_params(root.table("guidance", {}), default_guidance()))
     _check_start_is_free(scenario)
     return scenario
 
@@ -161,7 +162,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
 def default_guidance() -> GuidanceParams:
     """The guidance parameters of ``config/guidance.toml``."""
     path = config_dir() / "guidance.toml"
-    return GuidanceParams.from_table(Table(load_toml(path), path))
+    return guidance_params(Table(load_toml(path), path))
 
 
 def _bicycle_config(params: str, veh: Table) -> BicycleConfig:

@@ -12,8 +12,8 @@ from vflpcd.core.safety.guard import SafetyGuard
 from vflpcd.core.safety.monitors import MonitorConfig, PlanLimits
 from vflpcd.core.safety.supervisor import (AerialSupervisor, CarLimits, GroundSupervisor, QuadLimits,
                                            SupervisorConfig)
-from vflpcd.paths import config_dir
-from vflpcd.tomlread import Table, load_toml
+from vflpcd.base.paths import config_dir
+from vflpcd.base.tomlread import Table, load_toml
 
 _POSITIVE = {"margin", "release_margin", "decel_factor", "max_step_m", "plan_timeout", "tracking_bound",
              "route_bound", "response_window", "response_accel_tol", "response_yaw_min", "blocked_s", "hold_kp",
@@ -68,7 +68,7 @@ def guard_for(scenario, period: float, state_names,
     ``settings``: from ``safety_settings`` (default: config/safety.toml as it is)."""
     sup_cfg, mon_cfg = settings if settings is not None else safety_settings(scenario.platform)
     if scenario.platform == "ground":
-        from sim.plants.dynamic_bicycle import BicycleConfig
+        from vflpcd.config.vehicles import BicycleConfig
 
         bike = BicycleConfig.load(scenario.params)
         lim = bike.limits
@@ -77,7 +77,7 @@ def guard_for(scenario, period: float, state_names,
         sup = GroundSupervisor(sup_cfg, scenario.footprint, car, period, state_names)
         plan_limits = PlanLimits(kappa_max=float(np.tan(lim.delta_max) / car.wheelbase), a_lat_max=scenario.a_lat_max)
     else:
-        from sim.plants.quadrotor import QuadrotorParams
+        from vflpcd.config.vehicles import QuadrotorParams
 
         quad = QuadrotorParams.from_toml()
         sup = AerialSupervisor(sup_cfg, scenario.footprint.radius, QuadLimits(quad.accel_max), period, state_names)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vflpcd.errors import ConfigError
+from vflpcd.base.errors import ConfigError
 
 CONTROLLER_FAULTS = ("stall", "error", "overrun", "nan", "veer")
 PLATFORM_FAULTS = {"freeze": "freeze", "nan_state": "nan", "link": "link", "stuck": "stuck"}

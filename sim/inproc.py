@@ -29,7 +29,7 @@ import numpy as np
 
 from vflpcd.core.ports import StampedState
 
-log = logging.getLogger("drivers.inproc")
+log = logging.getLogger("sim.inproc")
 
 FAULTS = ("freeze", "nan", "link", "stuck")
 STUCK_COMMAND = 2.0           # the "stuck" actuators' first control: a_x (vehicle) or a_x (quadrotor), m/s^2
@@ -165,11 +165,11 @@ class InProcPlatform:
         return a
 
 
-def inproc_from_scenario(scenario, options: dict, file=None) -> InProcPlatform:
+def inproc_from_scenario(scenario, options: dict, file=None, flight_log=None) -> InProcPlatform:
     """The in-process platform of a mission: the route's plant at its start state. ``options``: the
     mission's [platform] table without ``kind`` (physics_rate_hz, seed, hold_s, land_speed)."""
     from sim.plants import make_plant
-    from vflpcd.tomlread import Table
+    from vflpcd.base.tomlread import Table
 
     t = Table(options, file, "platform")
     t.check_known({"physics_rate_hz", "seed", "hold_s", "land_speed"})
@@ -178,7 +178,7 @@ def inproc_from_scenario(scenario, options: dict, file=None) -> InProcPlatform:
     plant = make_plant(scenario, seed)
     brake = -6.0
     if scenario.platform == "ground":
-        from sim.plants.dynamic_bicycle import BicycleConfig
+        from vflpcd.config.vehicles import BicycleConfig
 
         brake = BicycleConfig.load(scenario.params).limits.a_min
     return InProcPlatform(plant, physics_rate_hz=rate, brake=brake, hold_s=t.number("hold_s", 2.0, min=0.0),

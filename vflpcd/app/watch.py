@@ -17,7 +17,7 @@ import time
 from collections import deque
 from typing import Any, TextIO
 
-from vflpcd.errors import ConfigError
+from vflpcd.base.errors import ConfigError
 
 TOPIC_ORDER = ("state", "command", "reference", "obstacles", "timing", "health", "events", "perception/obstacles")
 N_EVENTS = 5

@@ -81,8 +81,8 @@ from scipy.sparse.csgraph import dijkstra
 
 from vflpcd.core.footprint import Footprint
 from vflpcd.core.angles import wrap_angle
-from vflpcd.paths import config_dir
-from vflpcd.tomlread import Table, load_toml
+from vflpcd.base.paths import config_dir
+from vflpcd.base.tomlread import Table, load_toml
 
 __all__ = [
     "HybridAStarParams", "HybridAStarResult", "DubinsPath", "dubins_paths", "dubins_shortest",
@@ -654,14 +654,14 @@ def _result(q: _Query, i: int, shot: DubinsPath | None, X, Y, TH, PARENT, STEER,
 
 # =========================================================================== scenario helper
 def plan_scenario(scenario, params: HybridAStarParams | None = None) -> HybridAStarResult:
-    """The standard query on a ground scenario (``sim.scenarios.Scenario`` or its name).
+    """The standard query on a ground scenario (``vflpcd.config.scenarios.Scenario`` or its name).
 
     start = scenario.start[:3]; goal = the path's end with the path's heading there; bounds =
     the path's bounding box grown by ``params.bounds_padding``; obstacles = the scenario's
     obstacles at their initial poses; vehicle = the scenario's bicycle parameter set.
     """
-    from sim.plants.dynamic_bicycle import BicycleConfig
-    from sim.scenarios import load_scenario
+    from vflpcd.config.vehicles import BicycleConfig
+    from vflpcd.config.scenarios import load_scenario
 
     sc = load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario
     if sc.platform != "ground":
@@ -677,7 +677,7 @@ def plan_scenario(scenario, params: HybridAStarParams | None = None) -> HybridAS
                              bike.limits.delta_max, bounds, params)
 
 
-if __name__ == "__main__":  # python -m sim.baselines.hybrid_astar [scenario]
+if __name__ == "__main__":  # python -m vflpcd.controllers.hybrid_astar [scenario]
     import sys
 
     name = sys.argv[1] if len(sys.argv) > 1 else "dense_static"

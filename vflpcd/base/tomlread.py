@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from vflpcd.errors import ConfigError
+from vflpcd.base.errors import ConfigError
 
 _MISSING = object()
 
@@ -99,6 +99,18 @@ class Table:
         if choices is not None and value not in choices:
             raise self.error(key, f"expected one of {', '.join(choices)}, got {value!r}")
         return value
+
+    def strings(self, key: str, default: Any = _MISSING, *, choices: tuple[str, ...] | None = None) -> tuple[str, ...]:
+        """A non-empty list of distinct strings (each one of ``choices`` when given)."""
+        value = self._raw(key, default)
+        if not isinstance(value, (list, tuple)) or not value or not all(isinstance(v, str) for v in value):
+            raise self.error(key, f"expected a non-empty list of strings, got {_describe(value)}")
+        if len(set(value)) != len(value):
+            raise self.error(key, f"expected distinct names, got {list(value)}")
+        bad = [v for v in value if choices is not None and v not in choices]
+        if bad:
+            raise self.error(key, f"expected names among {', '.join(choices)}, got {bad[0]!r}")
+        return tuple(value)
 
     def boolean(self, key: str, default: Any = _MISSING) -> bool:
         value = self._raw(key, default)

@@ -17,11 +17,11 @@ from typing import Sequence
 
 import numpy as np
 
-from sim.plants.dynamic_bicycle import BicycleConfig
+from vflpcd.config.vehicles import BicycleConfig
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
-from vflpcd.paths import config_dir
-from vflpcd.tomlread import Table, load_toml
+from vflpcd.base.paths import config_dir
+from vflpcd.base.tomlread import Table, load_toml
 
 
 @dataclass(frozen=True)
@@ -96,3 +96,11 @@ class PurePursuit:
             self._integral = float(np.clip(self._integral + err * dt, -g.integral_limit, g.integral_limit))
         self._prev_err, self._prev_t = err, t
         return np.array([a_x, delta])
+
+
+def make_pure_pursuit(scenario, **_) -> PurePursuit:
+    """Pure pursuit for ``scenario``'s car and route with the shipped gains."""
+    from vflpcd.config.vehicles import BicycleConfig
+
+    return PurePursuit(scenario.path, scenario.v_desired, scenario.a_lat_max, BicycleConfig.load(scenario.params),
+                       PurePursuitGains.load())

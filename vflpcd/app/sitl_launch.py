@@ -23,7 +23,7 @@ from pathlib import Path
 from urllib.parse import urlparse
 
 from vflpcd.daemon import lifeline
-from vflpcd.errors import ConfigError
+from vflpcd.base.errors import ConfigError
 
 log = logging.getLogger("vflpcd.sitl")
 

@@ -14,10 +14,10 @@ from pathlib import Path
 
 from vflpcd.daemon.config import EXECUTORS, MAX_RATE_HZ, FailsafePolicy, LoopConfig, WorkerConfig
 from vflpcd.daemon.telemetry import TelemetryConfig, check_vehicle_id
-from vflpcd.errors import ConfigError
-from vflpcd.paths import config_dir
-from vflpcd.safety import safety_settings
-from vflpcd.tomlread import Table, load_toml
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.paths import config_dir
+from vflpcd.config.safety import safety_settings
+from vflpcd.base.tomlread import Table, load_toml
 
 PLATFORM_KINDS = {"inproc": ("ground", "aerial"), "mavlink": ("aerial",), "can": ("ground",)}
 
@@ -37,7 +37,7 @@ class Mission:
     vehicle_id: str
     description: str
     platform: PlatformConfig
-    scenario: object            # sim.scenarios.Scenario
+    scenario: object            # vflpcd.config.scenarios.Scenario
     controller: str
     model_path: Path | None
     compensation: bool
@@ -52,7 +52,7 @@ class Mission:
 
 def load_mission(path: str | Path) -> Mission:
     """Read and validate a mission; raises ConfigError naming the file and the field."""
-    from sim.scenarios import load_scenario
+    from vflpcd.config.scenarios import load_scenario
 
     file = Path(path)
     root = Table(load_toml(file), file)
@@ -141,7 +141,7 @@ def _find(name: str, mission_file: Path, folder: str, suffix: str, table: Table,
 
 def build_controller(mission: Mission):
     """The mission's controller for its route, ticking at the mission's rate."""
-    from sim.baselines import make_controller
+    from vflpcd.controllers import make_controller
 
     options = {}
     if mission.controller in ("vflpc", "vflpc_ml", "koopman_mpc"):

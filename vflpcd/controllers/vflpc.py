@@ -6,34 +6,35 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.plants import make_plant
 from vflpcd.core.control.error_model import Limits
 from vflpcd.core.dynamics.compensation import KoopmanCompensation, OnlineCompensator
-from vflpcd.core.dynamics.koopman import load_koopman
+from vflpcd.config.koopman_file import load_koopman
 from vflpcd.core.dynamics.sparse_gp import SEHyper
 from vflpcd.core.guidance.planner import GuidancePlanner
 from vflpcd.core.guidance.planner3d import GuidancePlanner3D
+from vflpcd.config.params import vflpc_params
 from vflpcd.core.vflpc import VFLPC, VFLPCParams
-from vflpcd.paths import config_dir
-from vflpcd.tomlread import Table, load_toml
+from vflpcd.base.paths import config_dir
+from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.config.vehicles import state_names
 
 MODELS = {"ground": "dynamic_bicycle.npz", "aerial": "quadrotor.npz"}
 
 
 def load_params(platform: str, path: str | Path | None = None) -> VFLPCParams:
     path = Path(path) if path is not None else config_dir() / "controllers" / "vflpc.toml"
-    return VFLPCParams.from_table(Table(load_toml(path), path), platform)
+    return vflpc_params(Table(load_toml(path), path), platform)
 
 
 def limits_for(scenario, dt: float) -> Limits:
     """Actuator limits of the scenario's plant, the rate limit per control step."""
     if scenario.platform == "ground":
-        from sim.plants.dynamic_bicycle import BicycleConfig
+        from vflpcd.config.vehicles import BicycleConfig
 
         lim = BicycleConfig.load(scenario.params).limits
         return Limits(np.array([lim.a_min, -lim.delta_max]), np.array([lim.a_max, lim.delta_max]),
                       np.array([np.inf, lim.delta_rate_max * dt]))
-    from sim.plants.quadrotor import QuadrotorParams
+    from vflpcd.config.vehicles import QuadrotorParams
 
     a = QuadrotorParams.from_toml().accel_max
     return Limits(np.full(3, -a), np.full(3, a), np.full(3, np.inf))
@@ -44,23 +45,28 @@ def curvature_limit(scenario) -> float:
     the quadrotor."""
     if scenario.platform != "ground":
         return np.inf
-    from sim.plants.dynamic_bicycle import BicycleConfig
+    from vflpcd.config.vehicles import BicycleConfig
 
     cfg = BicycleConfig.load(scenario.params)
     return float(np.tan(cfg.limits.delta_max) / cfg.params.wheelbase)
 
 
-def compensator_for(model) -> OnlineCompensator:
-    """GP on [vx, vy, omega] (B_d = [0_3 I_3 0]^T, paper section "Model Uncertainties Learning"),
-    input z = [vx, vy, omega, rho_e, u]."""
+def compensator_for(model, params: VFLPCParams) -> OnlineCompensator:
+    """The GP on the channels of ``[compensation]`` (config/controllers/vflpc.toml; B_d selects them,
+    paper section "Model Uncertainties Learning"), input z = [channels, rho_e, u], its sizes and
+    initial hyper-parameters from the same table."""
     names = model.state_names
-    rows = [names.index(n) for n in ("vx", "vy", "omega")]
-    B_d = np.zeros((model.n_K, 3))
-    B_d[rows, [0, 1, 2]] = 1.0
+    missing = [n for n in params.gp_channels if n not in names]
+    if missing:
+        raise ValueError(f"compensation channels {missing} are not states of the model {names}")
+    rows = [names.index(n) for n in params.gp_channels]
+    n_y = len(rows)
+    B_d = np.zeros((model.n_K, n_y))
+    B_d[rows, range(n_y)] = 1.0
     z_index = rows + list(range(model.n_x, model.n_K - 1))
     comp = KoopmanCompensation(model.A, model.B, B_d, z_index)
-    hyp = SEHyper(ell=np.full(3, 3.0), sf2=np.full(3, 0.05), sn2=np.full(3, 1e-4))
-    return OnlineCompensator(comp, hyp, nu=0.05, m_max=48, n_max=400)
+    hyp = SEHyper(ell=np.full(n_y, params.gp_ell), sf2=np.full(n_y, params.gp_sf2), sn2=np.full(n_y, params.gp_sn2))
+    return OnlineCompensator(comp, hyp, nu=params.gp_nu, m_max=params.gp_m_max, n_max=params.gp_n_max)
 
 
 def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str = "vflpc",
@@ -78,5 +84,10 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
                          f"every {scenario.control_period} s, the model steps {model.dt} s")
     return VFLPC(planner, model, params, limits_for(scenario, period), scenario.footprint.radius,
                  scenario.guidance.safety_margin, solver=solver,
-                 compensator=compensator_for(model) if compensation else None, name=name,
-                 state_names=make_plant(scenario, 0).state_names, period=period)
+                 compensator=compensator_for(model, params) if compensation else None, name=name,
+                 state_names=state_names(scenario.platform), period=period)
+
+
+def make_vflpc_ml(scenario, **options) -> VFLPC:
+    """VF-LPC with the online GP compensation (paper section IV, "Model Uncertainties Learning")."""
+    return make_vflpc(scenario, compensation=True, name="vflpc_ml", **options)

@@ -6,7 +6,7 @@ prefix; the writer thread flushes the file object every ``flush_period_s``, hand
 to the kernel. A process killed with SIGKILL therefore loses only what was still in the queue
 or in the user-space buffer: at most ``flush_period_s`` plus one write pass. (``os.fsync`` is
 not called: the kernel keeps what it was given when the process dies; only a power cut loses
-more.) ``vflpcd.flightlog.read_flight_log`` reads such a truncated file up to its last complete
+more.) ``vflpcd.log.reader.read_flight_log`` reads such a truncated file up to its last complete
 message. ``close()`` writes the summary and footer.
 
 Channels (message encoding "json", schema encoding "jsonschema"): ``/header`` (one
@@ -33,10 +33,10 @@ from typing import Any
 
 from mcap.writer import CompressionType, IndexType, Writer
 
-from vflpcd.daemon.records import Event, MissionHeader, TickRecord, json_bytes
-from vflpcd.errors import ConfigError
+from vflpcd.log.records import Event, MissionHeader, TickRecord, json_bytes
+from vflpcd.base.errors import ConfigError
 
-log = logging.getLogger("vflpcd.daemon.recorder")
+log = logging.getLogger("vflpcd.log.writer")
 
 TOPIC_HEADER = "/header"
 TOPIC_TICK = "/tick"

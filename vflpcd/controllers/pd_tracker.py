@@ -17,8 +17,8 @@ import numpy as np
 
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
-from vflpcd.paths import config_dir
-from vflpcd.tomlread import Table, load_toml
+from vflpcd.base.paths import config_dir
+from vflpcd.base.tomlread import Table, load_toml
 
 
 @dataclass(frozen=True)
@@ -62,3 +62,8 @@ class PDTracker:
         if norm > g.accel_max:
             a *= g.accel_max / norm
         return a
+
+
+def make_pd_tracker(scenario, **_) -> PDTracker:
+    """The PD tracker for ``scenario``'s route with the shipped gains."""
+    return PDTracker(scenario.path, scenario.v_desired, scenario.a_lat_max, PDGains.load())

@@ -3,14 +3,23 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 from dataclasses import replace
 from pathlib import Path
 
-from vflpcd.errors import ConfigError
+from vflpcd.base.errors import ConfigError
 
 log = logging.getLogger("vflpcd")
+
+
+def _simulator(command: str):
+    """A command of the simulator package (``sim.commands``), imported only when it runs: the
+    production path (run, check, plot, watch) never imports ``sim``."""
+    def run(*args):
+        return getattr(importlib.import_module("sim.commands"), command)(*args)
+    return run
 
 
 SITL_MOCKS = {"quad": "a PX4-like quadrotor autopilot over MAVLink/UDP",
@@ -32,12 +41,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-plot", action="store_true", help="skip the PNG")
     p.add_argument("--no-supervisor", action="store_true",
                    help="run without the safety supervisor and monitors (for comparison only)")
-    p.set_defaults(func=cmd_sim)
+    p.set_defaults(func=_simulator("cmd_sim"))
 
     p = sub.add_parser("collect", add_help=False, help="record seeded random-excitation logs of a simulated plant "
                                                         "(vflpcd collect --help)")
     p.add_argument("args", nargs=argparse.REMAINDER)
-    p.set_defaults(func=cmd_collect)
+    p.set_defaults(func=_simulator("cmd_collect"))
 
     p = sub.add_parser("train", help="offline training (needs the train extra: torch)")
     train = p.add_subparsers(dest="target", required=True)
@@ -54,27 +63,27 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--safe-distance", type=float, default=0.0,
                    help="least body clearance that counts as a safe distance, m (default 0)")
     b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
-    b.set_defaults(func=cmd_bench_guidance)
+    b.set_defaults(func=_simulator("cmd_bench_guidance"))
 
     b = bench.add_parser("dynamics", help="learned-model costs and online GP compensation on racing_track")
     b.add_argument("--model", type=Path, default=None,
                    help="vehicle model artifact (default config/models/dynamic_bicycle.npz)")
     b.add_argument("--seed", type=int, default=0, help="seed of the plant's process noise (default 0)")
     b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
-    b.set_defaults(func=cmd_bench_dynamics)
+    b.set_defaults(func=_simulator("cmd_bench_dynamics"))
 
     b = bench.add_parser("impc", help="VF-LPC against NMPC (MPC-CBF), Koopman-MPC and pure pursuit "
                                       "(the paper's IMPC table), w/ and w/o ML, and on uav_3d")
     b.add_argument("--scenario", default="carsim_avoidance", help="ground scenario (default carsim_avoidance)")
     b.add_argument("--aerial", default="uav_3d", help="aerial scenario of table 3 (default uav_3d)")
     b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
-    b.set_defaults(func=cmd_bench_impc)
+    b.set_defaults(func=_simulator("cmd_bench_impc"))
 
     b = bench.add_parser("variants", help="VF-LPC on seeded road variants with moving obstacles (collisions)")
     b.add_argument("--n", type=int, default=50, help="number of variants (default 50)")
     b.add_argument("--first-seed", type=int, default=0, help="seed of the first variant (default 0)")
     b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
-    b.set_defaults(func=cmd_bench_variants)
+    b.set_defaults(func=_simulator("cmd_bench_variants"))
 
     b = bench.add_parser("safety", help="every controller behind the safety supervisor on scenes with no or only "
                                         "a tight safe path, with and without it (collisions, stops, impact speeds)")
@@ -83,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--controller", action="append", default=None,
                    help="a controller (repeatable; default vflpc, nmpc_cbf, koopman_mpc, pure_pursuit)")
     b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
-    b.set_defaults(func=cmd_bench_safety)
+    b.set_defaults(func=_simulator("cmd_bench_safety"))
 
     p = sub.add_parser("run", help="run a mission: the daemon (fixed-rate VF-LPC loop, workers, telemetry, log)")
     p.add_argument("mission", type=Path, help="mission file (config/missions/*.toml)")
@@ -135,11 +144,11 @@ def main(argv: list[str] | None = None) -> int:
 
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:1] == ["collect"]:  # commands with parsers of their own get the rest of the line as it is
-        return cmd_collect(argparse.Namespace(args=argv[1:]))
+        return _simulator("cmd_collect")(argparse.Namespace(args=argv[1:]))
     if argv[:2] == ["train", "koopman"]:
         return cmd_train_koopman(argparse.Namespace(args=argv[2:]))
     if argv[:1] == ["sitl"] and argv[1:2] and argv[1] in SITL_MOCKS:
-        return cmd_sitl(argv[1], argv[2:])
+        return _simulator("cmd_sitl")(argv[1], argv[2:], SITL_MOCKS[argv[1]])
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s %(message)s")
@@ -150,51 +159,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
-def cmd_sim(args) -> int:
-    from sim.baselines import DEFAULT_CONTROLLER, make_controller
-    from sim.report import metrics_table, write_results
-    from sim.runner import OUTCOME_EXIT, run_closed_loop
-    from sim.scenarios import load_scenario
-
-    scenario = load_scenario(args.scenario)
-    name = args.controller or DEFAULT_CONTROLLER[scenario.platform]
-    controller = make_controller(name, scenario)
-    record = run_closed_loop(scenario, controller, seed=args.seed, supervised=not args.no_supervisor)
-    out = args.out or Path("results") / f"{scenario.name}-{name}-s{args.seed}"
-    out.mkdir(parents=True, exist_ok=True)
-    print(metrics_table(record, scenario))
-    files = [write_results(record, scenario, out / "results.json")]
-    if not args.no_plot:
-        from sim.plot import plot_run
-
-        files.append(plot_run(record, scenario, out / "plot.png"))
-    for f in files:
-        print(f"wrote {f}")
-    return OUTCOME_EXIT[record.outcome]
 
 
-def cmd_sitl(name: str, argv: list[str]) -> int:
-    """``vflpcd sitl NAME ARGS``: the mock's own parser gets the rest of the line."""
-    if name == "quad":
-        from sim.sitl import quad as mock
-    else:
-        from sim.sitl import can_ecu as mock
-    parser = argparse.ArgumentParser(prog=f"vflpcd sitl {name}", description=SITL_MOCKS[name])
-    mock.add_arguments(parser)
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=getattr(args, "log_level", "INFO").upper(), stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s %(message)s")
-    try:
-        return mock.run(args)
-    except ConfigError as exc:
-        print(f"vflpcd sitl {name}: error: {exc}", file=sys.stderr)
-        return 2
 
 
-def cmd_collect(args) -> int:
-    from sim.collect import main as collect_main
-
-    return collect_main(args.args)
 
 
 def cmd_train_koopman(args) -> int:
@@ -209,88 +177,28 @@ def cmd_train_koopman(args) -> int:
     return train_main(args.args)
 
 
-def cmd_bench_guidance(args) -> int:
-    from sim.bench.guidance import bench_guidance
-    from sim.scenarios import load_scenario
-
-    scenario = load_scenario(args.scenario)
-    if scenario.platform != "ground":
-        raise ConfigError("command line", "--scenario", f"the planning comparison needs a ground scenario, "
-                          f"{scenario.name!r} is {scenario.platform}")
-    if args.repeat < 1 or args.astar_repeat < 1:
-        raise ConfigError("command line", "--repeat", "expected at least one run")
-    bench_guidance(scenario, args.out, args.repeat, args.astar_repeat, args.safe_distance)
-    return 0
 
 
-def cmd_bench_impc(args) -> int:
-    from sim.scenarios import load_scenario
-
-    for option, name, platform in (("--scenario", args.scenario, "ground"), ("--aerial", args.aerial, "aerial")):
-        found = load_scenario(name).platform
-        if found != platform:
-            raise ConfigError("command line", option, f"expected a {platform} scenario, {name!r} is {found}")
-    import importlib.util
-
-    missing = [m for m in ("casadi", "osqp") if importlib.util.find_spec(m) is None]
-    if missing:
-        print(f"vflpcd: error: the IMPC benchmark needs {' and '.join(missing)}: pip install -e '.[bench]'",
-              file=sys.stderr)
-        return 2
-    from sim.bench.impc import bench_impc
-
-    bench_impc(args.out, args.scenario, args.aerial)
-    return 0
 
 
-def cmd_bench_variants(args) -> int:
-    if args.n < 1 or args.first_seed < 0:
-        raise ConfigError("command line", "--n", "expected at least one variant and a seed >= 0")
-    from sim.bench.variants import bench_variants
-
-    bench_variants(args.out, args.n, args.first_seed)
-    return 0
 
 
-def cmd_bench_safety(args) -> int:
-    from sim.bench.safety import CONTROLLERS, SCENES, bench_safety
-
-    scenes = tuple(args.scene or SCENES)
-    for name in scenes:
-        if name not in SCENES:
-            raise ConfigError("command line", "--scene", f"no such scene {name!r} (have: {', '.join(SCENES)})")
-    controllers = tuple(args.controller or CONTROLLERS)
-    for name in controllers:
-        if name not in CONTROLLERS:
-            raise ConfigError("command line", "--controller",
-                              f"expected one of {', '.join(CONTROLLERS)} (ground controllers), got {name!r}")
-    bench_safety(args.out, scenes, controllers)
-    return 0
 
 
-def cmd_bench_dynamics(args) -> int:
-    from sim.bench.dynamics import bench_dynamics
-    from vflpcd.core.dynamics.koopman import load_koopman
-    from vflpcd.paths import config_dir
-
-    path = args.model or config_dir() / "models" / "dynamic_bicycle.npz"
-    model = load_koopman(path, state_names=("X", "Y", "psi", "vx", "vy", "omega"), control_names=("a_x", "delta_f"))
-    bench_dynamics(model, args.out, args.seed)
-    return 0
 
 
 def cmd_run(args) -> int:
-    from vflpcd.drill import Drill
-    from vflpcd.flightlog import read_flight_log
-    from vflpcd.mission import load_mission
-    from vflpcd.run import run_mission
+    from vflpcd.app.drill import Drill
+    from vflpcd.log.reader import read_flight_log
+    from vflpcd.config.mission import load_mission
+    from vflpcd.app.run import run_mission
     from vflpcd.daemon.service import EXIT_COLLISION
-    from vflpcd.summary import clearances, summary_lines, touched_obstacles
+    from vflpcd.log.summary import clearances, summary_lines, touched_obstacles
 
     drill = Drill.parse(args.drill) if args.drill else None
     mission = load_mission(args.mission)
     if args.with_sitl:
-        from vflpcd.sitl_launch import SitlProcesses
+        from vflpcd.app.sitl_launch import SitlProcesses
 
         try:
             with SitlProcesses(mission, args.log_dir or mission.log_dir):
@@ -308,7 +216,7 @@ def cmd_run(args) -> int:
                                      reason=f"collision: touched {', '.join(touched)} ({result.outcome.reason})")
         print("\n".join(summary_lines(log, mission.scenario, result.outcome)))
         if args.plot:
-            from vflpcd.logplot import plot_flight_log
+            from vflpcd.log.plot import plot_flight_log
 
             print(f"wrote {plot_flight_log(log, result.log_path.with_suffix('.png'))}")
     else:
@@ -317,8 +225,8 @@ def cmd_run(args) -> int:
 
 
 def cmd_check(args) -> int:
-    from vflpcd.mission import build_controller, load_mission
-    from vflpcd.run import build_platform
+    from vflpcd.config.mission import build_controller, load_mission
+    from vflpcd.app.run import build_platform
 
     mission = load_mission(args.mission)
     controller = build_controller(mission)
@@ -331,14 +239,14 @@ def cmd_check(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    from vflpcd.logplot import main as plot_main
+    from vflpcd.log.plot import main as plot_main
 
     plot_main(args.log, args.out)
     return 0
 
 
 def cmd_watch(args) -> int:
-    from vflpcd.watch import watch
+    from vflpcd.app.watch import watch
 
     return watch(args.vehicle_id, connect=tuple(args.connect), listen=tuple(args.listen), duration_s=args.duration)
 
@@ -346,13 +254,13 @@ def cmd_watch(args) -> int:
 def cmd_bench_loop(args) -> int:
     if not (1.0 <= args.rate <= 200.0) or args.duration <= 0:
         raise ConfigError("command line", "--rate", "expected a rate in [1, 200] Hz and a positive duration")
-    from vflpcd.benchloop import bench_loop
+    from vflpcd.app.benchloop import bench_loop
 
     return bench_loop(args.mission, args.rate, args.duration, args.executor, args.out)
 
 
 def cmd_scenarios(args) -> int:
-    from sim.scenarios import available_scenarios, load_scenario
+    from vflpcd.config.scenarios import available_scenarios, load_scenario
 
     for name in available_scenarios():
         s = load_scenario(name)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vflpcd.flightlog import FlightLog, read_flight_log
+from vflpcd.log.reader import FlightLog, read_flight_log
 
 
 def positions(log: FlightLog) -> np.ndarray:

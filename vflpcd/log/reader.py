@@ -1,4 +1,4 @@
-"""Reading a flight log (the MCAP file of ``vflpcd.daemon.recorder``) into numpy arrays.
+"""Reading a flight log (the MCAP file of ``vflpcd.log.writer``) into numpy arrays.
 
 A daemon killed mid-run leaves a file without summary and footer, possibly cut inside a record;
 ``read_flight_log`` reads it record by record, keeps every complete message and reports
@@ -18,8 +18,8 @@ from mcap.exceptions import EndOfFile, InvalidMagic, McapError
 from mcap.records import Channel, Footer, Message
 from mcap.stream_reader import StreamReader
 
-from vflpcd.daemon.records import Event, MissionHeader
-from vflpcd.errors import ConfigError
+from vflpcd.log.records import Event, MissionHeader
+from vflpcd.base.errors import ConfigError
 
 FILE_FIELD = "<file>"
 MAGIC_SIZE = 8

@@ -1,0 +1,89 @@
+"""The tunable numbers of config/ read into core's dataclasses: the guidance (config/guidance.toml,
+a scenario's [guidance] table) and VF-LPC (config/controllers/vflpc.toml). Errors name the file
+and the field (``ConfigError`` through ``Table``)."""
+
+from __future__ import annotations
+
+from dataclasses import fields, replace
+
+import numpy as np
+
+from vflpcd.base.tomlread import Table
+from vflpcd.core.guidance.params import GuidanceParams, VirtualObstacleSpec
+from vflpcd.core.vflpc import VFLPCParams
+
+_POSITIVE = ("k_p", "k_r", "l1", "l2", "k_c", "beta", "grid_resolution", "corridor", "epsilon", "reactive_margin",
+             "horizon", "a_accel", "a_decel", "virtual_buffer", "curvature_use")
+
+
+def guidance_params(t: Table, base: GuidanceParams | None = None) -> GuidanceParams:
+    """Every field from table t, or, with ``base``, only the fields t sets (an override)."""
+    names = {f.name for f in fields(GuidanceParams)}
+    t.check_known(names)
+    values = {}
+    for name in names - {"virtual", "virtual_obstacles"}:
+        if base is None or t.has(name):
+            values[name] = t.number(name, positive=name in _POSITIVE, min=0.0)
+    if base is None or t.has("virtual"):
+        values["virtual"] = t.string("virtual", choices=("auto", "off"))
+    if t.has("virtual_obstacles"):
+        values["virtual_obstacles"] = tuple(_virtual(v) for v in t.tables("virtual_obstacles"))
+    return replace(base, **values) if base is not None else GuidanceParams(**values)
+
+
+def _virtual(t: Table) -> VirtualObstacleSpec:
+    t.check_known({"center", "radius", "c", "parent", "gamma"})
+    c = t.number("c")
+    if not -1.0 < c < 0.0:
+        raise t.error("c", f"expected a repulsive level -1 < c < 0 (c_i < 0), got {c:g}")
+    gamma = t.integer("gamma", 0)
+    if gamma not in (-1, 0, 1):
+        raise t.error("gamma", f"expected -1, 1 or 0 (automatic), got {gamma}")
+    return VirtualObstacleSpec(center=t.vector("center", 2), radius=t.number("radius", positive=True), c=c,
+                               parent=t.string("parent"), gamma=gamma)
+
+
+def vflpc_params(root: Table, platform: str) -> VFLPCParams:
+    root.check_known({"cost", "horizon", "solver", "features", "barrier", "replan", "compensation"})
+    cost, hor, sol = root.table("cost"), root.table("horizon"), root.table("solver")
+    feat, bar, rep = root.table("features"), root.table("barrier"), root.table("replan")
+    cost.check_known({"q_ground", "r_ground", "r_rate_ground", "q_aerial", "r_aerial", "r_rate_aerial", "q_lift",
+                      "gamma"})
+    hor.check_known({"seconds"})
+    sol.check_known({"i_max", "tol", "eta_a", "divergence"})
+    feat.check_known({"error_std_ground", "error_std_aerial", "samples", "size", "nu", "ell_factor", "seed"})
+    bar.check_known({"mu", "length", "l_safe", "max_threats"})
+    rep.check_known({"end_margin", "velocity_change"})
+    comp = root.table("compensation", {})
+    comp.check_known({"refit_every", "min_samples", "channels", "ell", "sf2", "sn2", "nu", "m_max", "n_max"})
+    q, r = cost.vector(f"q_{platform}"), cost.vector(f"r_{platform}")
+    if np.any(q < 0) or np.any(r <= 0):
+        raise cost.error(f"q_{platform}", "state weights must be >= 0 and control weights > 0")
+    r_rate = cost.vector(f"r_rate_{platform}", len(r)) if cost.has(f"r_rate_{platform}") else None
+    if r_rate is not None and np.any(r_rate <= 0):
+        raise cost.error(f"r_rate_{platform}", "increment weights must be > 0")
+    gamma = cost.number("gamma", min=0.0)
+    if not (0.0 < gamma <= 1.0):
+        raise cost.error("gamma", f"must lie in (0, 1], got {gamma}")
+    eta_a = sol.number("eta_a", positive=True)
+    if eta_a > 1.0:
+        raise sol.error("eta_a", f"must lie in (0, 1], got {eta_a}")
+    std = feat.vector(f"error_std_{platform}", len(q))
+    if np.any(std <= 0):
+        raise feat.error(f"error_std_{platform}", "must be positive")
+    return VFLPCParams(Q_x=q, R=np.diag(r), q_lift=cost.number("q_lift", min=0.0), gamma=gamma,
+               horizon_s=hor.number("seconds", positive=True), i_max=sol.integer("i_max", min=1),
+               tol=sol.number("tol", min=0.0), eta_a=eta_a, divergence=sol.number("divergence", positive=True),
+               error_std=std, samples=feat.integer("samples", min=1), size=feat.integer("size", min=1),
+               nu=feat.number("nu", positive=True), ell_factor=feat.number("ell_factor", positive=True),
+               seed=feat.integer("seed", min=0), mu=bar.number("mu", min=0.0),
+               barrier_length=bar.number("length", positive=True), l_safe=bar.number("l_safe", min=0.0),
+               max_threats=bar.integer("max_threats", min=0), end_margin=rep.number("end_margin", min=0.0),
+               velocity_change=rep.number("velocity_change", positive=True),
+               refit_every=comp.integer("refit_every", 100, min=1),
+               refit_min_samples=comp.integer("min_samples", 60, min=1),
+               gp_channels=tuple(comp.strings("channels", ("vx", "vy", "omega"))),
+               gp_ell=comp.number("ell", 3.0, positive=True), gp_sf2=comp.number("sf2", 0.05, positive=True),
+               gp_sn2=comp.number("sn2", 1e-4, positive=True), gp_nu=comp.number("nu", 0.05, positive=True),
+               gp_m_max=comp.integer("m_max", 48, min=1), gp_n_max=comp.integer("n_max", 400, min=2),
+               R_rate=None if r_rate is None else np.diag(r_rate))
