@@ -1,4 +1,4 @@
-"""PNG of a flight log: map, tracking error, commands and tick timing (``vflpcd plot-log``).
+"""PNG of a flight log: map, tracking error, commands and tick timing (``vflpcd plot``).
 
 Header obstacles are dicts; the keys read here are ``id``, ``outline`` ((n, 2) closed top-view
 polygon), ``center`` (d,), ``velocity`` (d,) and ``radius`` (a circle is drawn when there is no
