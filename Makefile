@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 
-.PHONY: demo test setup clean
+.PHONY: demo test test-fast setup clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,6 +18,10 @@ demo: $(BIN)/.installed
 
 test: $(BIN)/.installed
 	$(BIN)/pytest -q
+
+# the inner loop: the unit tests only (no real-time missions, SITL or benches)
+test-fast: $(BIN)/.installed
+	$(BIN)/pytest -q tests/unit
 
 clean:
 	rm -rf $(VENV) results .pytest_cache *.egg-info

@@ -44,7 +44,7 @@ import numpy as np
 
 from drivers.can_bus import BusConfig, bus_config, open_bus
 from drivers.can_codec import FRAME_ERRORS, MODES, AliveCounter, CounterSource, FrameError, VehicleCan
-from vflpcd.core.ports import StampedState
+from vflpcd.core.ports import PlatformBase, StampedState
 
 log = logging.getLogger("drivers.can_vehicle")
 
@@ -83,7 +83,7 @@ class _ErrorListener(can.Listener):
         pass
 
 
-class CanVehicle:
+class CanVehicle(PlatformBase):
     """``bus``: which bus to open; ``limits``: the vehicle's ``BicycleLimits`` (a_min, a_max,
     delta_max); ``codec``: the DBC; ``state_timeout``, ``command_hold``, ``reconnect_s`` in s;
     ``bus_log``: a file to record the traffic to (None: no recording)."""

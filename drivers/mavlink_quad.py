@@ -36,7 +36,7 @@ import time
 import numpy as np
 
 from drivers.ned_enu import attitude_ned_to_enu, enu_to_ned, frd_to_flu, ned_to_enu
-from vflpcd.core.ports import StampedState
+from vflpcd.core.ports import PlatformBase, StampedState
 
 log = logging.getLogger("drivers.mavlink_quad")
 
@@ -44,10 +44,13 @@ STATE_NAMES = ("X", "Y", "Z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "p", "q"
 CONTROL_NAMES = ("ax", "ay", "az")
 
 
-class MavlinkQuad:
+class MavlinkQuad(PlatformBase):
     """``url``: MAVSDK's connection URL; ``origin``: ENU position (3,) of the autopilot's local NED
     origin; ``takeoff_altitude``: m above that origin; ``accel_max``: the norm limit of an
     acceleration setpoint (m/s^2); the rest are time limits in seconds."""
+
+    safe_action = "hold_then_land"
+    prepares = True
 
     state_names = STATE_NAMES
     control_names = CONTROL_NAMES

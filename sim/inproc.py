@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from vflpcd.core.ports import StampedState
+from vflpcd.core.ports import PlatformBase, StampedState
 
 log = logging.getLogger("sim.inproc")
 
@@ -35,10 +35,12 @@ FAULTS = ("freeze", "nan", "link", "stuck")
 STUCK_COMMAND = 2.0           # the "stuck" actuators' first control: a_x (vehicle) or a_x (quadrotor), m/s^2
 
 
-class InProcPlatform:
+class InProcPlatform(PlatformBase):
     """``plant``: a ``sim.plants`` plant at its start state (its ``state_names``/``control_names``);
     ``brake``: the vehicle's braking acceleration (its a_min, m/s^2); ``hold_s``, ``land_speed``,
     ``ground_z``: the quadrotor's hold time (s), descent speed (m/s) and ground height (m)."""
+
+    injects_faults = True
 
     def __init__(self, plant, *, physics_rate_hz: float = 200.0, brake: float = -6.0,
                  hold_s: float = 2.0, land_speed: float = 0.5, ground_z: float = 0.0) -> None:
@@ -48,6 +50,7 @@ class InProcPlatform:
         self.state_names = tuple(plant.state_names)
         self.control_names = tuple(plant.control_names)
         self.aerial = "Z" in self.state_names
+        self.safe_action = "hold_then_land" if self.aerial else "brake_to_stop"
         self.dt = 1.0 / physics_rate_hz
         self.brake, self.hold_s, self.land_speed, self.ground_z = brake, hold_s, land_speed, ground_z
         self._command = np.zeros(len(self.control_names))

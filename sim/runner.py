@@ -4,9 +4,9 @@ Each control step k at t_k = k * control_period: the obstacle triggers are updat
 the robot position, the controller maps (x_k, t_k, perceived obstacles) to u_k (its wall
 time is t_cal), the safety guard (``vflpcd.core.safety``, the same as in the daemon) passes u_k or
 replaces it with the emergency manoeuvre (its wall time is t_sup), everything is recorded, and the
-plant integrates the command over one period. A controller with worker work (``background()``:
-VF-LPC's replans and GP refits, which the daemon runs on workers) does it after the plant step,
-outside t_cal; its wall time is t_background.
+plant integrates the command over one period. A controller with worker work (``jobs``: VF-LPC's
+replans and GP refits, which the daemon runs on workers) has it run inline after the plant step
+(``vflpcd.core.jobs.run_inline``), outside t_cal; its wall time is t_background.
 
 The run ends when the robot's progress along the path reaches the goal (``completed``), when
 t_max is reached (``timeout``), when the controller or the plant produces a non-finite value
@@ -29,8 +29,9 @@ from vflpcd.core.obstacle_world import ObstacleWorld
 from sim.plants import make_plant
 from vflpcd.config.scenarios import Scenario
 from vflpcd.core.path import progress_delta
-from vflpcd.core.ports import Controller
+from vflpcd.core.ports import ControllerBase
 from vflpcd.core.safety.guard import SafetyGuard
+from vflpcd.core.jobs import run_inline
 from vflpcd.config.safety import guard_for
 
 REST_HOLD_S = 0.5      # after a failsafe, the run ends once the body has been at rest this long
@@ -82,7 +83,7 @@ class RunRecord:
     metrics: dict = field(default_factory=dict)
 
 
-def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0, *,
+def run_closed_loop(scenario: Scenario, controller: ControllerBase, seed: int = 0, *,
                     supervised: bool = True, guard: SafetyGuard | None = None) -> RunRecord:
     """Run ``controller`` on ``scenario`` behind the safety guard (``guard``, default: the route's
     from config/safety.toml; ``supervised=False`` runs without any, for comparison) and return the
@@ -102,7 +103,7 @@ def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0, *
                                              "override", "t_sup")}
     s_prev, progress, outcome, t_com = None, 0.0, "timeout", None
     failsafe, rest_since = "", None
-    background = getattr(controller, "background", None)
+    jobs = controller.jobs
     for k in range(n_steps):
         t = k * dt
         x = plant.state
@@ -166,9 +167,9 @@ def run_closed_loop(scenario: Scenario, controller: Controller, seed: int = 0, *
                 break
         plant.step(sent, dt)
         rows["applied"].append(plant.applied_control)
-        if background is not None and not failsafe:
+        if jobs is not None and not failsafe:
             t0 = time.perf_counter_ns()
-            background()
+            run_inline(jobs)
             rows["t_background"][-1] = (time.perf_counter_ns() - t0) * 1e-9
         if not np.all(np.isfinite(plant.state)):
             outcome = "diverged"

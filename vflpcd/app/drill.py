@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vflpcd.base.errors import ConfigError
+from vflpcd.core.ports import ControllerBase, ControllerStatus, PlatformBase
 
 CONTROLLER_FAULTS = ("stall", "error", "overrun", "nan", "veer")
 PLATFORM_FAULTS = {"freeze": "freeze", "nan_state": "nan", "link": "link", "stuck": "stuck"}
@@ -43,27 +44,27 @@ class Drill:
         return cls(kind, at_s)
 
 
-class DrillController:
-    """Wraps a controller; from mission time ``drill.at_s`` on, injects the drill's fault."""
+class DrillController(ControllerBase):
+    """Wraps a controller; from mission time ``drill.at_s`` on, injects the drill's fault. The
+    inner controller's plan, background work, counters and reference are its own."""
 
-    def __init__(self, inner, drill: Drill, platform, period_s: float) -> None:
-        if drill.kind in PLATFORM_FAULTS and not hasattr(platform, "inject"):
+    def __init__(self, inner: ControllerBase, drill: Drill, platform: PlatformBase, period_s: float) -> None:
+        if drill.kind in PLATFORM_FAULTS and not platform.injects_faults:
             raise ConfigError("command line", "--drill", f"{drill.kind} needs a platform that injects faults (inproc)")
         self.inner, self.drill, self.platform, self.period_s = inner, drill, platform, period_s
         self.name = inner.name
+        self.planning, self.jobs = inner.planning, inner.jobs
         self.fired = False
         self.fired_ns: int | None = None       # monotonic time at which the fault started
 
-    def __getattr__(self, name):              # the inner controller's job API, counters and plan
-        return getattr(self.inner, name)
+    def status(self) -> ControllerStatus:
+        return self.inner.status()
 
-    @property
-    def plan_gate(self):
-        return self.inner.plan_gate
+    def reference_at(self, t: float):
+        return self.inner.reference_at(t)
 
-    @plan_gate.setter
-    def plan_gate(self, gate) -> None:          # the safety guard's, on the controller that installs plans
-        self.inner.plan_gate = gate
+    def prepare(self, state, t: float, obstacles=()) -> None:
+        self.inner.prepare(state, t, obstacles)
 
     def reset(self) -> None:
         self.inner.reset()

@@ -106,7 +106,7 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
             close()
         raise
     closers.append(recorder.close)
-    workers = Workers(mission.workers.executor, controller.planner) if hasattr(controller, "take_replan") else None
+    workers = Workers(mission.workers.executor, controller.jobs.planner) if controller.jobs is not None else None
     if workers is not None:
         closers.insert(0, workers.close)
     sc = mission.scenario
@@ -122,8 +122,7 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
                            sinks=sinks, guard=guard)
 
     def first_plan(state):
-        if hasattr(controller, "ensure_plan"):
-            controller.ensure_plan(state, 0.0, obstacles(0.0, state))
+        controller.prepare(state, 0.0, obstacles(0.0, state))
 
     daemon = Daemon(platform, make_loop, first_plan=first_plan, workers=workers, closers=closers,
                     telemetry=telemetry, stop_after_s=stop_after_s)

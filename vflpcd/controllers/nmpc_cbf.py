@@ -107,6 +107,7 @@ from vflpcd.core.angles import wrap_angle
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
 from vflpcd.core.shapes import Circle
+from vflpcd.core.ports import ControllerBase
 from vflpcd.base.errors import ConfigError
 from vflpcd.base.paths import config_dir
 from vflpcd.base.tomlread import Table, load_toml
@@ -224,7 +225,7 @@ def obstacle_discs(shape, n_max: int) -> tuple[np.ndarray, float, int]:
     return centres, r_n, n_max
 
 
-class NmpcCbf:
+class NmpcCbf(ControllerBase):
     """MPC-CBF baseline. Controller protocol: state [X, Y, psi, vx, vy, omega] -> [a_x, delta_f].
 
     After each ``step``: ``plan_states`` (N+1, 6) and ``plan_controls`` (N, 2) of the last

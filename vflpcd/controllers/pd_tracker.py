@@ -17,6 +17,7 @@ import numpy as np
 
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
+from vflpcd.core.ports import ControllerBase
 from vflpcd.base.paths import config_dir
 from vflpcd.base.tomlread import Table, load_toml
 
@@ -36,7 +37,7 @@ class PDGains:
         return cls(**{k: root.number(k, positive=True) for k in ("kp", "kd", "accel_max", "brake")})
 
 
-class PDTracker:
+class PDTracker(ControllerBase):
     """Controller protocol: state [X, Y, Z, vx, vy, vz, ...] -> command [ax, ay, az] (world, gravity excluded)."""
 
     name = "pd_tracker"

@@ -20,6 +20,7 @@ import numpy as np
 from vflpcd.config.vehicles import BicycleConfig
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
+from vflpcd.core.ports import ControllerBase
 from vflpcd.base.paths import config_dir
 from vflpcd.base.tomlread import Table, load_toml
 
@@ -50,7 +51,7 @@ class PurePursuitGains:
                    integral_limit=pid.number("integral_limit", min=0.0))
 
 
-class PurePursuit:
+class PurePursuit(ControllerBase):
     """Controller protocol: state [X, Y, psi, vx, vy, omega] -> command [a_x, delta_f]."""
 
     name = "pure_pursuit"

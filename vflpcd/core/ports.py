@@ -3,6 +3,10 @@
 ``Controller`` is implemented by VF-LPC and every baseline, so the offline runner, the
 benchmarks and the daemon take any of them. ``Platform`` is implemented by every driver
 (in-process plant, MAVLink quadrotor, CAN vehicle); the daemon knows no protocol details.
+Everything the runner and the daemon call is declared here: the optional members have safe
+defaults in ``ControllerBase`` and ``PlatformBase``, which every controller and driver derive
+from; a controller's background work follows ``WorkerJobs`` (``vflpcd.core.jobs`` runs it
+inline); its counters are one ``ControllerStatus``. Nothing is probed with getattr.
 """
 
 from __future__ import annotations
@@ -63,10 +67,8 @@ class StampedState:
 class Platform(Protocol):
     """A vehicle link: connect, enable (arm), read the latest state, send commands, fail safe.
 
-    Optional members the daemon uses when a driver has them: ``async prepare()`` (after the first
-    state, bring the vehicle to the route's start: the quadrotor arms and takes off), ``fault()``
-    (a link fault as a string, or None), ``at_rest`` (stands still / landed), ``link_stats()``
-    (the link's counters for the log), ``inject(kind)`` (drills).
+    The optional members (``prepare``, ``fault``, ``at_rest``, ``link_stats``, ``inject``) and the
+    ``safe_action`` are declared, with safe defaults, by ``PlatformBase``.
     """
 
     state_names: tuple[str, ...]
@@ -87,3 +89,112 @@ class Platform(Protocol):
         ...
 
     async def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class ControllerStatus:
+    """A controller's counters, one record (``Controller.status()``): guidance plans installed
+    (``replans``) and failed, GP refits installed, solver fallbacks, and the obstacles whose
+    barrier is on (``threats``, ids)."""
+
+    replans: int = 0
+    replan_failures: int = 0
+    refits: int = 0
+    fallbacks: int = 0
+    threats: tuple[str, ...] = ()
+
+
+class WorkerJobs(Protocol):
+    """The background work of a controller, in three steps: ``take_*`` hands out a job (or None),
+    someone runs it (``vflpcd.core.jobs``: inline in the offline runner, on the daemon's worker
+    processes), and ``install_*`` / ``replan_failed`` hand the outcome back between two ticks.
+    ``planner`` is the object a replan runs on (given to each guidance worker once)."""
+
+    planner: object
+
+    def take_replan(self, force_at: float | None = None): ...
+
+    def install_plan(self, job, result) -> None: ...
+
+    def replan_failed(self, job, reason: str) -> None: ...
+
+    def take_refit(self): ...
+
+    def install_model(self, job, model) -> None: ...
+
+
+class ControllerBase:
+    """The ``Controller`` port with safe defaults for its optional members (as python-can's
+    ``BusABC``): no plan of its own (``planning`` None), no background work (``jobs`` None), zero
+    counters, no reference, nothing to prepare. Every controller derives from it."""
+
+    name: str = ""
+    planning: PlanningController | None = None
+    jobs: WorkerJobs | None = None
+
+    def reset(self) -> None:
+        raise NotImplementedError
+
+    def step(self, state: np.ndarray, t: float, obstacles: Sequence[ObstacleState] = ()) -> np.ndarray:
+        raise NotImplementedError
+
+    def status(self) -> ControllerStatus:
+        return ControllerStatus()
+
+    def reference_at(self, t: float) -> np.ndarray | None:
+        """The reference position (d,) at time t, None without one."""
+        return None
+
+    def prepare(self, state: np.ndarray, t: float, obstacles: Sequence[ObstacleState] = ()) -> None:
+        """Before the first tick, from the first state (VF-LPC plans its first reference)."""
+
+
+class PlatformBase:
+    """The ``Platform`` port with safe defaults for its optional members: ``prepare`` does nothing
+    (``prepares`` False; the quadrotor arms and takes off), no link ``fault``, ``at_rest`` unknown
+    (None), no ``link_stats``, no fault injection (``injects_faults`` False). ``safe_action`` names
+    what ``failsafe`` does: "brake_to_stop" (ground) or "hold_then_land" (aerial)."""
+
+    state_names: tuple[str, ...]
+    control_names: tuple[str, ...]
+    safe_action: str = "brake_to_stop"
+    prepares: bool = False
+    injects_faults: bool = False
+
+    async def connect(self) -> None:
+        raise NotImplementedError
+
+    async def enable(self) -> None:
+        raise NotImplementedError
+
+    def latest_state(self) -> StampedState | None:
+        raise NotImplementedError
+
+    async def send(self, command: np.ndarray) -> None:
+        raise NotImplementedError
+
+    async def failsafe(self, reason: str) -> None:
+        raise NotImplementedError
+
+    async def close(self) -> None:
+        raise NotImplementedError
+
+    async def prepare(self) -> None:
+        """After the first state, bring the vehicle to the route's start (default: nothing to do)."""
+
+    def fault(self) -> str | None:
+        """A link fault as a string, None while the link is sound."""
+        return None
+
+    @property
+    def at_rest(self) -> bool | None:
+        """Standing still / landed and disarmed; None: the platform cannot tell."""
+        return None
+
+    def link_stats(self) -> dict:
+        """The link's counters for the log ({} without any)."""
+        return {}
+
+    def inject(self, fault: str | None) -> None:
+        """Start (or with None end) an injected fault (drills); only where ``injects_faults``."""
+        raise NotImplementedError(f"{type(self).__name__} does not inject faults")

@@ -20,13 +20,13 @@ Every ``step(state, t, obstacles)``:
 
 GP samples are offered to the compensator every model step (``OnlineCompensator.observe``, cheap;
 when the control period is a fraction 1/k of the model's dt, every k-th tick); the refit is worker
-work too: ``background()`` runs it when due (the offline runner calls it after each timed step).
+work too, run when due (``vflpcd.core.jobs.run_inline`` after each timed step offline).
 
 Worker work as jobs (the daemon's workers, possibly in another process): ``take_replan()`` hands
 out the due replan as a picklable ``ReplanJob``, ``plan_job(planner, job)`` runs it anywhere, and
 ``install_plan(job, result)`` (or ``replan_failed``) takes the result back between two ticks;
-``take_refit()`` / ``refit_job`` / ``install_model`` do the same for the GP refit.
-``background()`` is these steps in sequence.
+``take_refit()`` / ``refit_job`` / ``install_model`` do the same for the GP refit
+(``WorkerJobs`` of ``vflpcd.core.ports``; ``vflpcd.core.jobs.run_inline`` is these steps in sequence).
 """
 
 from __future__ import annotations
@@ -43,10 +43,10 @@ from vflpcd.core.control.error_model import ErrorModel, Limits, TickFrame
 from vflpcd.core.control.game_region import threats
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
-from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob, refit_job
+from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
-from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.ports import ControllerBase, ControllerStatus
 
 log = logging.getLogger("vflpcd.core.vflpc")
 
@@ -153,13 +153,15 @@ def rl_features(model: LiftedLinearModel, error_std: np.ndarray, v_max: float, s
     return KernelFeatures.from_samples(err, ell, nu, size)
 
 
-class VFLPC:
+class VFLPC(ControllerBase):
     """Algorithm 1 (module docstring). ``planner``: a guidance planner (2-D or 3-D) on the
     reference path; ``model``: the lifted Koopman model; ``limits``: actuator limits (per step
     for the rate); ``body_radius`` and ``safety_margin``: the safety distance of the barrier and
     the game region; ``solver``: a horizon solver (default: Eb-RHRL); ``compensator``: the online
     GP (None: w/o ML); ``state_names``: the platform's state order (default the model's), of which
-    the model's states are picked by name (the quadrotor's 13 -> X, Y, Z, vx, vy, vz)."""
+    the model's states are picked by name (the quadrotor's 13 -> X, Y, Z, vx, vy, vz). It follows
+    a plan of its own (``planning`` is itself, for the safety monitors) and has background work
+    (``jobs`` is itself: replans and GP refits, ``WorkerJobs``)."""
 
     name = "vflpc"
 
@@ -200,6 +202,7 @@ class VFLPC:
             solver = EbRHRL(A, B, Q, R, P, em.gamma, feats, self.N, params.eta_a, params.i_max, params.tol)
         self.solver, self.compensator = solver, compensator
         self.plan_gate = None          # set by the safety guard (vflpcd.core.safety): refuses undrivable replans
+        self.planning, self.jobs = self, self
         self.body_radius, self.safety_margin = float(body_radius), float(safety_margin)
         self.reset()
 
@@ -224,7 +227,7 @@ class VFLPC:
         self.last_threats: tuple[str, ...] = ()
         self.refits = 0
 
-    def ensure_plan(self, state: np.ndarray, t: float, obstacles: Sequence[ObstacleState] = ()) -> None:
+    def prepare(self, state: np.ndarray, t: float, obstacles: Sequence[ObstacleState] = ()) -> None:
         """Plan the first reference now if there is none (the daemon does it before its first
         tick; ``step`` does it otherwise). Raises GuidanceError when no plan exists."""
         if self._plan is None:
@@ -271,28 +274,10 @@ class VFLPC:
         """The plan being followed (a ``GuidancePlan``), None before the first."""
         return self._plan
 
-    @property
-    def plan_version(self) -> int:
-        return self.replans
+    def status(self) -> ControllerStatus:
+        return ControllerStatus(self.replans, self.replan_failures, self.refits, self.fallbacks, self.last_threats)
 
-    @property
-    def model_version(self) -> int:
-        return self.refits
-
-    # ------------------------------------------------------------------ worker jobs
-    def background(self) -> None:
-        """Worker work, outside the control tick: the replan that the last step found due (the next
-        step uses its result), and the GP refit when enough samples have come in since the last."""
-        job = self.take_replan()
-        if job is not None:
-            try:
-                self.install_plan(job, plan_job(self.planner, job))
-            except GuidanceError as exc:
-                self.replan_failed(job, str(exc))
-        refit = self.take_refit()
-        if refit is not None:
-            self.install_model(refit, refit_job(refit))
-
+    # ------------------------------------------------------------------ worker jobs (WorkerJobs)
     def take_replan(self, force_at: float | None = None) -> ReplanJob | None:
         """The due replan, handed out once (None when none is due). ``force_at``: a time t at which
         a replan is wanted even if none is due (a periodic refresh): it is made from the last state."""

@@ -103,8 +103,7 @@ class ControlLoop:
         self.realtime = False
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._jobs = hasattr(controller, "take_replan") and workers is not None
-        self._link_fault = getattr(platform, "fault", lambda: None)
+        self._jobs = controller.jobs if workers is not None else None
         self._next_refresh = workers_cfg.replan_period if workers_cfg.replan_period > 0 else None
         self._next_refit = workers_cfg.refit_period
 
@@ -154,7 +153,7 @@ class ControlLoop:
         c.lateness.add(tick.lateness_ns * 1e-9)
         self._install_finished(t)
         stamped = self.platform.latest_state()
-        reason = self.monitor.check_state(stamped, tick.start_ns, self._link_fault())
+        reason = self.monitor.check_state(stamped, tick.start_ns, self.platform.fault())
         state = np.asarray(stamped.state, dtype=float) if stamped is not None else None
         command, compute, obstacles = (), 0.0, ()
         if self.mode == RUNNING and reason is None:
@@ -188,7 +187,7 @@ class ControlLoop:
                 self.trip(streak)
             elif self.progress is not None and state is not None and self.progress.update(state):
                 self._complete(t)
-        if self.mode == RUNNING and self._jobs:
+        if self.mode == RUNNING and self._jobs is not None:
             self._dispatch(t)
         self.last_tick_ns = time.monotonic_ns()
         if self.gc is not None:
@@ -223,15 +222,15 @@ class ControlLoop:
         if sinks.recorder is None and sinks.telemetry is None:
             return
         ctl = self.controller
-        ref = ctl.reference_at(t) if hasattr(ctl, "reference_at") and self.mode == RUNNING else None
+        ref = ctl.reference_at(t) if self.mode == RUNNING else None
+        status = ctl.status()
         rec = TickRecord(
             k=tick.k, t=t, stamp_ns=tick.start_ns, mode=self.mode,
             state=tuple(state.tolist()) if state is not None else (),
             state_age_s=(tick.start_ns - stamped.stamp_ns) * 1e-9 if stamped is not None else float("nan"),
             reference=tuple(ref.tolist()) if ref is not None else (), command=command,
             lateness_s=tick.lateness_ns * 1e-9, compute_s=compute, overrun=bool(overrun),
-            threats=tuple(getattr(ctl, "last_threats", ())), plan_version=int(getattr(ctl, "plan_version", 0)),
-            model_version=int(getattr(ctl, "model_version", 0)),
+            threats=status.threats, plan_version=status.replans, model_version=status.refits,
             obstacles=tuple(ObstacleRecord(o.id, tuple(o.center_at(t).tolist()), tuple(np.asarray(o.velocity).tolist()),
                                            float(o.shape.bounding_radius()),
                                            "perception" if o.id.startswith("perception:") else "mission")
@@ -250,8 +249,7 @@ class ControlLoop:
         self.failsafe_tick = self.counters.ticks
         self.ended_ns = time.monotonic_ns()
         asyncio.run_coroutine_threadsafe(self.platform.failsafe(reason), self.aio)
-        action = "hold_then_land" if "Z" in self.platform.state_names else "brake_to_stop"
-        self.event("failsafe", reason=reason, action=action)
+        self.event("failsafe", reason=reason, action=self.platform.safe_action)
 
     def _complete(self, t: float) -> None:
         self.mode = COMPLETE
@@ -274,9 +272,9 @@ class ControlLoop:
 
     # ------------------------------------------------------------------ workers
     def _install_finished(self, t: float) -> None:
-        if not self._jobs:
+        if self._jobs is None:
             return
-        ctl, c = self.controller, self.counters
+        ctl, c = self._jobs, self.counters
         for f in self.workers.collect():
             if f.kind == "replan":
                 if f.error is None:
@@ -293,7 +291,7 @@ class ControlLoop:
             self.event("worker_error", job=f.kind, reason=f"{type(f.error).__name__}: {f.error}"[:200])
 
     def _dispatch(self, t: float) -> None:
-        ctl, w = self.controller, self.workers
+        ctl, w = self._jobs, self.workers
         if not w.busy("replan"):
             force = None
             if self._next_refresh is not None and t >= self._next_refresh:

@@ -103,11 +103,11 @@ class Daemon:
             return await self._end(loop, Outcome(EXIT_ERROR, reason, loop), started=False)
         if self._signal:
             return await self._end(loop, Outcome(EXIT_OK, self._signal, loop), started=False)
-        prepare = getattr(self.platform, "prepare", None)
-        if prepare is not None:             # e.g. the quadrotor arms and takes off to the route's start
+        prepares = self.platform.prepares
+        if prepares:                        # e.g. the quadrotor arms and takes off to the route's start
             self.notifier.status("preparing the platform")
             try:
-                if await self._unless_stopped(prepare()):
+                if await self._unless_stopped(self.platform.prepare()):
                     first = await self._first_state(policy.connect_timeout, after_ns=time.monotonic_ns())
             except Exception as exc:
                 reason = f"platform preparation failed: {type(exc).__name__}: {exc}"
@@ -123,7 +123,7 @@ class Daemon:
             reason = f"no first plan from the vehicle's state: {exc}"
             log.error("event=first_plan_failed reason=%s", reason)
             return await self._end(loop, Outcome(EXIT_BAD_INPUT, reason, loop), started=False,
-                                   prepared=prepare is not None)
+                                   prepared=prepares)
         try:
             if self.workers is not None:
                 await aio.run_in_executor(None, self.workers.start)
@@ -132,11 +132,11 @@ class Daemon:
             reason = f"start-up failed: {type(exc).__name__}: {exc}"
             log.exception("event=startup_failed")
             return await self._end(loop, Outcome(EXIT_ERROR, reason, loop), started=False,
-                                   prepared=prepare is not None)
+                                   prepared=prepares)
         loop.start()
         if self.stop_after_s is not None:
             aio.call_later(self.stop_after_s, self.request_stop, f"ran {self.stop_after_s:g} s")
-        loop.event("started", rate_hz=loop.cfg.rate_hz, controller=getattr(loop.controller, "name", "?"),
+        loop.event("started", rate_hz=loop.cfg.rate_hz, controller=loop.controller.name,
                    realtime=loop.cfg.sched_fifo)
         self.notifier.ready()
         loop.event("ready")
@@ -203,16 +203,13 @@ class Daemon:
                     return Outcome(failsafe_exit(loop.reason), loop.reason or "failsafe", loop)
 
     def _health(self, loop: ControlLoop) -> None:
-        c = loop.counters
+        c, status = loop.counters, loop.controller.status()
         health = {"mode": loop.mode, "t": round(loop.mission_time(time.monotonic_ns()), 3), "ticks": c.ticks,
                   "overruns": c.overruns, "skipped": loop.rate.skipped,
                   "lateness_p99_ms": round(c.lateness.recent_percentile(99) * 1e3, 3),
                   "compute_p99_ms": round(c.compute.recent_percentile(99) * 1e3, 3),
-                  "replans": int(getattr(loop.controller, "replans", 0)),
-                  "replan_failures": int(getattr(loop.controller, "replan_failures", 0)),
-                  "refits": int(getattr(loop.controller, "refits", 0)),
-                  "worker_errors": c.worker_errors, "send_errors": c.send_errors,
-                  "fallbacks": int(getattr(loop.controller, "fallbacks", 0)),
+                  "replans": status.replans, "replan_failures": status.replan_failures, "refits": status.refits,
+                  "worker_errors": c.worker_errors, "send_errors": c.send_errors, "fallbacks": status.fallbacks,
                   "progress_m": round(loop.progress.covered, 1) if loop.progress is not None else None,
                   "reason": loop.reason}
         self.notifier.status(f"{loop.mode} t={health['t']:.1f}s ticks={c.ticks} overruns={c.overruns} "
@@ -245,9 +242,9 @@ class Daemon:
                 since_ns = loop.ended_ns
         failure = await self._come_to_rest(loop, since_ns) if started or prepared else None
         if started:
-            link_stats = getattr(self.platform, "link_stats", None)
-            if link_stats is not None:
-                loop.event("link_stats", **link_stats())
+            link_stats = self.platform.link_stats()
+            if link_stats:
+                loop.event("link_stats", **link_stats)
             loop.event("stopping", reason=reason if failure is None else f"{reason}; {failure}")
             loop.stop(0.5)
         await self._bounded(self.platform.close(), 0.5)
@@ -260,7 +257,7 @@ class Daemon:
 
     def _at_rest(self) -> bool | None:
         """The platform's ``at_rest`` (landed and disarmed / standing still); None: it cannot tell."""
-        value = getattr(self.platform, "at_rest", None)
+        value = self.platform.at_rest
         return None if value is None else bool(value)
 
     async def _come_to_rest(self, loop: ControlLoop, since_ns: int) -> str | None:

@@ -57,19 +57,19 @@ def _init_worker(planner, parent_pid: int | None = None) -> None:
 
 
 def _run_replan(job):
-    from vflpcd.core.vflpc import plan_job
+    from vflpcd.core.jobs import run_replan
 
-    return plan_job(_PLANNER, job)
+    return run_replan(_PLANNER, job)
 
 
 def _run_refit(job):
-    from vflpcd.core.dynamics.compensation import refit_job
+    from vflpcd.core.jobs import run_refit
 
-    return refit_job(job)
+    return run_refit(job)
 
 
 def _warm_up() -> bool:
-    import vflpcd.core.vflpc  # noqa: F401  (imports the planning code once, before the first job)
+    import vflpcd.core.jobs  # noqa: F401  (imports the planning code once, before the first job)
 
     return True
 
@@ -168,7 +168,7 @@ class Workers:
         for which, ex in self._executors.items():
             if ex is None:
                 continue
-            processes = list((getattr(ex, "_processes", None) or {}).values())
+            processes = list((ex._processes or {}).values()) if isinstance(ex, ProcessPoolExecutor) else []
             ex.shutdown(wait=False, cancel_futures=True)
             for p in processes:              # a long replan must not delay the exit
                 if p.is_alive():

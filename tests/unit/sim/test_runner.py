@@ -6,6 +6,7 @@ import pytest
 from vflpcd.controllers import make_controller
 from sim.runner import run_closed_loop
 from vflpcd.config.scenarios import load_scenario
+from vflpcd.core.ports import ControllerBase
 
 CORRIDOR_OBSTACLES = """
 [[obstacles]]
@@ -56,7 +57,7 @@ def test_behind_the_supervisor_pure_pursuit_stops_before_the_block(line_scenario
     assert 0 < m["t_sup_median"] < 0.01
 
 
-class RaisingController:
+class RaisingController(ControllerBase):
     name = "raising"
 
     def reset(self):
@@ -77,7 +78,7 @@ def test_a_controller_that_raises_is_a_failsafe_that_brakes_to_rest(line_scenari
     assert bare.t[-1] == pytest.approx(1.0)
 
 
-class NaNController:
+class NaNController(ControllerBase):
     name = "nan"
 
     def reset(self):

@@ -19,7 +19,6 @@ from typing import Sequence
 import numpy as np
 
 from vflpcd.core.obstacles import ObstacleState
-from vflpcd.core.ports import PlanningController
 from vflpcd.core.safety.monitors import (MonitorConfig, Persistence, PlanLimits, PlanWatch, ResponseWatch,
                                          TrackingWatch)
 from vflpcd.core.safety.supervisor import Supervisor, Verdict
@@ -57,7 +56,7 @@ class SafetyGuard:
         self.response.reset()
         self.held = Persistence()
         self.deferred_since: float | None = None
-        self._controller, self._planning = None, False
+        self._controller, self._planning = None, None
 
     @property
     def interventions(self) -> int:
@@ -70,9 +69,10 @@ class SafetyGuard:
     def step(self, t: float, state: np.ndarray, command: np.ndarray, obstacles: Sequence[ObstacleState],
              controller=None, route_error: float = np.nan) -> GuardStep:
         """state (n_x,), the controller's command (n_u,) at time t, the known obstacles; controller:
-        checked for its plan when it is a ``PlanningController`` (whose ``plan_gate`` is then set to
-        refuse undrivable replans); route_error: the distance to the route (m), the tracking error
-        of a controller without a plan of its own (a planning one's is the distance to its plan's path)."""
+        checked for its plan when it has one (``planning``, a ``PlanningController``, whose
+        ``plan_gate`` is then set to refuse undrivable replans); route_error: the distance to the
+        route (m), the tracking error of a controller without a plan of its own (a planning one's
+        is the distance to its plan's path)."""
         sup = self.supervisor
         state = np.asarray(state, float)
         verdict = sup.filter(state, command, obstacles, t)
@@ -84,15 +84,17 @@ class SafetyGuard:
         if contact[0] <= 0.0:
             trip = f"collision: the body overlaps {contact[1]} by {-contact[0]:.2f} m"
         if controller is not self._controller:
-            self._controller, self._planning = controller, isinstance(controller, PlanningController)
-            if self._planning:
-                controller.plan_gate = self.plans.admit
+            self._controller = controller
+            self._planning = controller.planning if controller is not None else None
+            if self._planning is not None:
+                self._planning.plan_gate = self.plans.admit
         bound = self.cfg.route_bound
-        if self._planning:
-            reason, distance = self.plans.update(t, controller.current_plan, controller.replans,
-                                                 controller.replan_failures, sup.position(state))
+        planning = self._planning
+        if planning is not None:
+            reason, distance = self.plans.update(t, planning.current_plan, planning.replans,
+                                                 planning.replan_failures, sup.position(state))
             trip = trip or reason
-            if controller.current_plan is not None:
+            if planning.current_plan is not None:
                 route_error, bound = distance, self.cfg.tracking_bound
         trip = trip or self.tracking.update(t, route_error, bound)
         trip = trip or self.response.update(t, *sup.response_sample(state, verdict.command))

@@ -10,6 +10,7 @@ from sim.plants import make_plant
 from vflpcd.config.scenarios import load_scenario
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.shapes import Circle
+from vflpcd.core.jobs import run_inline
 
 
 @pytest.fixture(scope="module")
@@ -70,9 +71,9 @@ def test_a_due_replan_waits_for_the_background_and_the_next_step_uses_it(straigh
     first = ctrl._plan
     ctrl.step(plant.state, 0.05, [walker])        # the obstacle picture changed: a replan is due ...
     assert ctrl.replans == 1 and ctrl._plan is first
-    ctrl.background()                             # ... and runs as worker work
+    run_inline(ctrl.jobs)                         # ... and runs as worker work
     assert ctrl.replans == 2 and ctrl._plan is not first
-    ctrl.background()                             # nothing more is due
+    run_inline(ctrl.jobs)                         # nothing more is due
     assert ctrl.replans == 2
 
 

@@ -28,7 +28,7 @@ def ctrl(straight):
     ctrl = make_vflpc(straight)
     ctrl.state0 = make_plant(straight, 0).state
     ctrl.step(ctrl.state0, 0.0)                         # the first plan, made at once
-    assert ctrl.plan_version == 1 and ctrl.take_replan() is None
+    assert ctrl.status().replans == 1 and ctrl.take_replan() is None
     return ctrl
 
 
@@ -47,7 +47,7 @@ def test_one_replan_per_change_while_the_worker_plans(ctrl):
         assert ctrl.take_replan() is None, k            # being planned already: not asked again
     ctrl.install_plan(job, plan_job(ctrl.planner, job))
     ctrl.step(ctrl.state0, 12 * DT, [walker(1.0 - jitter)])
-    assert ctrl.plan_version == 2 and ctrl.take_replan() is None
+    assert ctrl.status().replans == 2 and ctrl.take_replan() is None
 
 
 def test_the_newest_picture_is_planned_next(ctrl):

@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 
 from vflpcd.core.obstacles import ObstacleState
-from vflpcd.core.ports import PlanningController
+from vflpcd.core.ports import ControllerBase, PlanningController
 from vflpcd.core.safety.guard import SafetyGuard
 from vflpcd.core.safety.monitors import MonitorConfig, PlanLimits
 from vflpcd.core.shapes import Box, Circle
@@ -49,8 +49,8 @@ def test_the_route_bound_is_the_tracking_limit_of_a_controller_without_a_plan(li
     assert g.step(0.05, car(v=5.0), np.zeros(2), [], route_error=8.1).trip.startswith("tracking_error: 8.10 m")
 
 
-class Planner:
-    """A stand-in ``PlanningController`` with a straight plan along x."""
+class Planner(ControllerBase):
+    """A stand-in controller that follows a plan of its own (a ``PlanningController``): straight along x."""
 
     name = "planner"
 
@@ -64,6 +64,7 @@ class Planner:
         self.plan.s, self.plan.xy = s, np.column_stack([s, np.zeros_like(s)])
         self.plan.kappa, self.plan.v = np.full_like(s, kappa), np.full_like(s, 5.0)
         self.replans, self.replan_failures, self.plan_gate = 1, 0, None
+        self.planning = self
 
     @property
     def current_plan(self):

@@ -118,7 +118,7 @@ def test_when_braking_cannot_stop_short_of_a_pedestrian_it_brakes_steering_away_
             sup._override = lambda state, u, obstacles, t: sup.emergency(state)
         ped = obstacle("ped", Circle(0.4), [6.2, -1.8], velocity=(0.0, 1.5))
         steer = []
-        least, impact, n = np.inf, None, 0
+        impact = None
         for k in range(int(3.0 / DT)):
             t = k * DT
             v = sup.filter(plant.state, np.array([0.0, 0.0]), [obstacle("ped", ped.shape, ped.center_at(t),
