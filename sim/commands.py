@@ -11,7 +11,7 @@ import logging
 import sys
 from pathlib import Path
 
-from vflpcd.base.errors import ConfigError
+from vflpcd.base.errors import LOG_FORMAT, ConfigError, exit_code_of
 
 
 def cmd_sim(args) -> int:
@@ -46,13 +46,8 @@ def cmd_sitl(name: str, argv: list[str], description: str) -> int:
     parser = argparse.ArgumentParser(prog=f"vflpcd sitl {name}", description=description)
     mock.add_arguments(parser)
     args = parser.parse_args(argv)
-    logging.basicConfig(level=getattr(args, "log_level", "INFO").upper(), stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s %(message)s")
-    try:
-        return mock.run(args)
-    except ConfigError as exc:
-        print(f"vflpcd sitl {name}: error: {exc}", file=sys.stderr)
-        return 2
+    logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr, format=LOG_FORMAT)
+    return exit_code_of(f"vflpcd sitl {name}", lambda: mock.run(args))
 
 
 def cmd_collect(args) -> int:

@@ -9,7 +9,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from vflpcd.base.errors import ConfigError
+from vflpcd.base.errors import LOG_FORMAT, ConfigError, exit_code_of
 
 log = logging.getLogger("vflpcd")
 
@@ -150,19 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == ["sitl"] and argv[1:2] and argv[1] in SITL_MOCKS:
         return _simulator("cmd_sitl")(argv[1], argv[2:], SITL_MOCKS[argv[1]])
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s %(message)s")
-    try:
-        return args.func(args)
-    except ConfigError as exc:
-        print(f"vflpcd: error: {exc}", file=sys.stderr)
-        return 2
-
-
-
-
-
-
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr, format=LOG_FORMAT)
+    return exit_code_of("vflpcd", lambda: args.func(args))
 
 
 def cmd_train_koopman(args) -> int:
@@ -175,16 +164,6 @@ def cmd_train_koopman(args) -> int:
               file=sys.stderr)
         return 2
     return train_main(args.args)
-
-
-
-
-
-
-
-
-
-
 
 
 def cmd_run(args) -> int:
