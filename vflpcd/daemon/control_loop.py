@@ -32,6 +32,7 @@ import numpy as np
 
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.ports import ControllerBase, PlatformBase
 from vflpcd.core.safety.guard import SafetyGuard
 from vflpcd.daemon.config import FailsafePolicy, LoopConfig, WorkerConfig
 from vflpcd.daemon.failsafe import FailsafeMonitor
@@ -75,14 +76,16 @@ class ControlLoop:
     ``obstacles(t, state)``: the mission's obstacles at mission time t (list of ObstacleState);
     ``perception``: an object with ``snapshot(now_unix, t)`` or None; ``progress``: the path goal
     or None (then the mission runs until stopped); ``guard``: the safety guard every command passes
-    (``vflpcd.config.safety.guard_for``), or None.
+    (``vflpcd.config.safety.guard_for``), or None; ``clock``/``sleep``: the monotonic clock (ns) that
+    deadlines, state ages, overruns and events are judged on, and how to wait on it.
     """
 
-    def __init__(self, platform, controller, loop: LoopConfig, workers_cfg: WorkerConfig,
-                 policy: FailsafePolicy, aio: asyncio.AbstractEventLoop, *,
+    def __init__(self, platform: PlatformBase, controller: ControllerBase, loop: LoopConfig,
+                 workers_cfg: WorkerConfig, policy: FailsafePolicy, aio: asyncio.AbstractEventLoop, *,
                  obstacles: Callable[[float, np.ndarray], Sequence[ObstacleState]] = lambda t, x: (),
                  perception=None, progress: Progress | None = None, workers: Workers | None = None,
-                 sinks: Sinks | None = None, guard: SafetyGuard | None = None) -> None:
+                 sinks: Sinks | None = None, guard: SafetyGuard | None = None,
+                 clock: Callable[[], int] = time.monotonic_ns, sleep: Callable[[float], None] = time.sleep) -> None:
         self.platform, self.controller, self.cfg, self.wcfg = platform, controller, loop, workers_cfg
         self.aio = aio
         self.obstacles, self.perception, self.progress, self.workers = obstacles, perception, progress, workers
@@ -91,13 +94,14 @@ class ControlLoop:
         self.n_u = len(platform.control_names)
         self.monitor = FailsafeMonitor(policy, len(platform.state_names))
         self.policy = policy
-        self.rate = RateKeeper(loop.period_s)
+        self.clock = clock
+        self.rate = RateKeeper(loop.period_s, clock=clock, sleep=sleep)
         self.gc = ManualGC(self.rate.period_ns) if loop.manual_gc else None
         self.mode = RUNNING
         self.reason: str | None = None
         self.counters = Counters()
         self.t0_ns: int | None = None
-        self.last_tick_ns = time.monotonic_ns()
+        self.last_tick_ns = clock()
         self.ended_ns: int | None = None          # when the vehicle was handed to its safe action
         self.failsafe_tick: int | None = None
         self.realtime = False
@@ -135,10 +139,7 @@ class ControlLoop:
             self.gc.start()
         try:
             while not self._stop.is_set():
-                tick = self.rate.wait()
-                if self._stop.is_set():
-                    break
-                self._tick(tick)
+                self.tick_once()
         except Exception as exc:                      # a bug in the loop itself: fail safe, then end
             log.exception("event=control_loop_error")
             self.trip(f"controller_error: control loop: {type(exc).__name__}: {exc}")
@@ -147,6 +148,12 @@ class ControlLoop:
                 self.gc.stop()
 
     # ------------------------------------------------------------------ one tick
+    def tick_once(self) -> None:
+        """Wait for the next deadline (``clock``/``sleep``) and run that tick, unless stopped meanwhile."""
+        tick = self.rate.wait()
+        if not self._stop.is_set():
+            self._tick(tick)
+
     def _tick(self, tick) -> None:
         c = self.counters
         t = (tick.deadline_ns - self.t0_ns) * 1e-9
@@ -175,7 +182,7 @@ class ControlLoop:
                 command = tuple(u.tolist())
         if reason is not None and self.mode == RUNNING:
             self.trip(reason)
-        work_end = time.monotonic_ns()
+        work_end = self.clock()
         c.work.add((work_end - tick.start_ns) * 1e-9)
         overrun = work_end > tick.deadline_ns + self.rate.period_ns
         c.overruns += overrun
@@ -189,7 +196,7 @@ class ControlLoop:
                 self._complete(t)
         if self.mode == RUNNING and self._jobs is not None:
             self._dispatch(t)
-        self.last_tick_ns = time.monotonic_ns()
+        self.last_tick_ns = self.clock()
         if self.gc is not None:
             self.gc.between_ticks(tick.deadline_ns + self.rate.period_ns - self.last_tick_ns)
 
@@ -247,18 +254,18 @@ class ControlLoop:
             return
         self.mode, self.reason = FAILSAFE, reason
         self.failsafe_tick = self.counters.ticks
-        self.ended_ns = time.monotonic_ns()
+        self.ended_ns = self.clock()
         asyncio.run_coroutine_threadsafe(self.platform.failsafe(reason), self.aio)
         self.event("failsafe", reason=reason, action=self.platform.safe_action)
 
     def _complete(self, t: float) -> None:
         self.mode = COMPLETE
-        self.ended_ns = time.monotonic_ns()
+        self.ended_ns = self.clock()
         asyncio.run_coroutine_threadsafe(self.platform.failsafe("mission_complete"), self.aio)
         self.event("mission_complete", progress_m=round(self.progress.covered, 2))
 
     def event(self, kind: str, **detail) -> None:
-        now = time.monotonic_ns()
+        now = self.clock()
         ev = Event(t=self.mission_time(now), stamp_ns=now, kind=kind, detail=detail)
         log.log(logging.WARNING if kind in ("failsafe", "worker_error", "replan_failed", "supervisor_brake")
                 else logging.INFO,

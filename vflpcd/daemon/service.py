@@ -33,6 +33,7 @@ import time
 from dataclasses import dataclass
 
 from vflpcd.core.guidance.implicit import GuidanceError
+from vflpcd.core.ports import PlatformBase
 from vflpcd.daemon.control_loop import COMPLETE, FAILSAFE, RUNNING, STOPPING, ControlLoop
 from vflpcd.daemon.sdnotify import SystemdNotifier
 
@@ -58,15 +59,17 @@ class Outcome:
 class Daemon:
     """``make_loop(aio)`` builds the ControlLoop once the event loop exists; ``first_plan(state)``
     plans the first reference (may take a second); ``closers``: callables run at shutdown, in order
-    (workers, telemetry, recorder), each bounded in time by its own implementation."""
+    (workers, telemetry, recorder), each bounded in time by its own implementation; ``clock``: the
+    monotonic clock (ns) that time-outs, holds and stalls are judged on (the control loop's)."""
 
-    def __init__(self, platform, make_loop, *, first_plan=None, workers=None, closers=(),
+    def __init__(self, platform: PlatformBase, make_loop, *, first_plan=None, workers=None, closers=(),
                  notifier: SystemdNotifier | None = None, telemetry=None, monitor_s: float = 0.05,
-                 stop_after_s: float | None = None) -> None:
+                 stop_after_s: float | None = None, clock=time.monotonic_ns) -> None:
         self.platform, self.make_loop, self.first_plan = platform, make_loop, first_plan
         self.workers, self.closers = workers, list(closers)
         self.notifier = notifier or SystemdNotifier.from_env()
         self.telemetry, self.monitor_s, self.stop_after_s = telemetry, monitor_s, stop_after_s
+        self.clock = clock
         self.loop: ControlLoop | None = None
         self._signal: str | None = None
         self._wake: asyncio.Event | None = None
@@ -81,6 +84,9 @@ class Daemon:
         finally:
             for sig in (signal.SIGTERM, signal.SIGINT):
                 aio.remove_signal_handler(sig)
+
+    def _now_s(self) -> float:
+        return self.clock() * 1e-9
 
     def _on_signal(self, name: str) -> None:
         self.request_stop(name)
@@ -108,7 +114,7 @@ class Daemon:
             self.notifier.status("preparing the platform")
             try:
                 if await self._unless_stopped(self.platform.prepare()):
-                    first = await self._first_state(policy.connect_timeout, after_ns=time.monotonic_ns())
+                    first = await self._first_state(policy.connect_timeout, after_ns=self.clock())
             except Exception as exc:
                 reason = f"platform preparation failed: {type(exc).__name__}: {exc}"
                 log.error("event=prepare_failed reason=%s", reason)
@@ -159,21 +165,21 @@ class Daemon:
 
     async def _first_state(self, timeout_s: float, after_ns: int = 0):
         """The platform's first state (stamped at or after ``after_ns``)."""
-        deadline = time.monotonic() + timeout_s
+        deadline = self._now_s() + timeout_s
         while True:
             s = self.platform.latest_state()
             if s is not None and s.stamp_ns >= after_ns:
                 return s
             if self._signal:
                 return None
-            if time.monotonic() > deadline:
+            if self._now_s() > deadline:
                 raise asyncio.TimeoutError("no state received")
             await asyncio.sleep(0.01)
 
     async def _monitor(self, loop: ControlLoop) -> Outcome:
         period_ns = loop.rate.period_ns
         pet_s = self.notifier.watchdog_period_s
-        next_pet = next_status = time.monotonic()
+        next_pet = next_status = self._now_s()
         while True:
             try:
                 await asyncio.wait_for(self._wake.wait(), self.monitor_s)
@@ -183,12 +189,12 @@ class Daemon:
                 if loop.mode == FAILSAFE:        # latched before the stop request: it stays the outcome
                     return Outcome(failsafe_exit(loop.reason), f"{loop.reason or 'failsafe'} (then {self._signal})", loop)
                 return Outcome(EXIT_OK, self._signal, loop)
-            now_ns = time.monotonic_ns()
+            now_ns = self.clock()
             stall = loop.monitor.stalled(now_ns, loop.last_tick_ns)
             if stall is not None and loop.mode == RUNNING:
                 loop.trip(stall)
             on_time = now_ns - loop.last_tick_ns <= max(3 * period_ns, int(0.05e9))
-            now = time.monotonic()
+            now = self._now_s()
             if pet_s is not None and on_time and now >= next_pet:
                 self.notifier.watchdog()
                 next_pet = now + pet_s / 2
@@ -204,7 +210,7 @@ class Daemon:
 
     def _health(self, loop: ControlLoop) -> None:
         c, status = loop.counters, loop.controller.status()
-        health = {"mode": loop.mode, "t": round(loop.mission_time(time.monotonic_ns()), 3), "ticks": c.ticks,
+        health = {"mode": loop.mode, "t": round(loop.mission_time(self.clock()), 3), "ticks": c.ticks,
                   "overruns": c.overruns, "skipped": loop.rate.skipped,
                   "lateness_p99_ms": round(c.lateness.recent_percentile(99) * 1e3, 3),
                   "compute_p99_ms": round(c.compute.recent_percentile(99) * 1e3, 3),
@@ -231,7 +237,7 @@ class Daemon:
         prepared (e.g. is flying) though the loop never started. Returns None, or why the vehicle
         is not at rest."""
         self.notifier.stopping()
-        since_ns = time.monotonic_ns()
+        since_ns = self.clock()
         if prepared and not started:
             await self._bounded(self.platform.failsafe(f"shutdown: {reason}"), 0.5)
         if started:
@@ -276,7 +282,7 @@ class Daemon:
         pet_s = self.notifier.watchdog_period_s
         next_pet = next_status = 0.0
         while not self._at_rest():
-            now_ns, now = time.monotonic_ns(), time.monotonic()
+            now_ns, now = self.clock(), self._now_s()
             if now_ns >= deadline_ns:
                 motion = self._motion()
                 where = ", ".join(f"{k.split('_')[0]}={v:.2f} {'m' if k == 'z_m' else 'm/s'}"
@@ -292,7 +298,7 @@ class Daemon:
                 next_status = now + 1.0
                 self._health(loop)
             await asyncio.sleep(min(self.monitor_s, (deadline_ns - now_ns) * 1e-9))
-        rest_ns = time.monotonic_ns()
+        rest_ns = self.clock()
         loop.event("at_rest", what=what, waited_s=round((rest_ns - since_ns) * 1e-9, 2))
         if loop.t0_ns is not None:
             await self._recorded_after(loop, rest_ns)
@@ -303,7 +309,7 @@ class Daemon:
         after a state stamped at or after ``since_ns``, so that the flight log ends at rest."""
         period_ns = loop.rate.period_ns
         deadline_ns, fresh_ns = since_ns + 5 * period_ns, None
-        while (now_ns := time.monotonic_ns()) < deadline_ns:
+        while (now_ns := self.clock()) < deadline_ns:
             s = self.platform.latest_state()
             if fresh_ns is None and s is not None and s.stamp_ns >= since_ns:
                 fresh_ns = now_ns

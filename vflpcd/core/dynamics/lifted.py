@@ -149,7 +149,7 @@ class LiftedLinearModel(ABC):
     """Upsilon(x) = [x, rho(x)], Upsilon_{k+1} = A Upsilon_k + B u_k (module docstring).
 
     Subclasses implement :meth:`rho`. States given to ``lift``/``rollout`` are in the window
-    frame (use :meth:`rollout_world` for world-frame states). Attributes: A (n_K, n_K),
+    frame. Attributes: A (n_K, n_K),
     B (n_K, n_u), state_names (n_x,), control_names (n_u,), dt (s), x_mean/x_std (n_x,),
     u_mean/u_std (n_u,).
     """
@@ -198,10 +198,6 @@ class LiftedLinearModel(ABC):
         """(x - x_mean) / x_std, (..., n_x)."""
         return (np.asarray(x, dtype=np.float64) - self.x_mean) / self.x_std
 
-    def normalise_control(self, u: np.ndarray) -> np.ndarray:
-        """(u - u_mean) / u_std, (..., n_u)."""
-        return (np.asarray(u, dtype=np.float64) - self.u_mean) / self.u_std
-
     @abstractmethod
     def rho(self, x: np.ndarray) -> np.ndarray:
         """Observables beyond the state: x (..., n_x) window frame -> (..., n_K - n_x)."""
@@ -236,12 +232,3 @@ class LiftedLinearModel(ABC):
             U = U @ At + controls[:, k] @ Bt
             out[:, k + 1] = U[:, : self.n_x]
         return out
-
-    def rollout_world(self, x0: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        """Rollout from a world-frame state: x0 (n_x,), controls (H, n_u) -> world states (H + 1, n_x).
-
-        x0 is moved to the window frame (its own pose becomes the origin), rolled out, and the
-        prediction moved back with :func:`from_window_frame`."""
-        x0 = np.asarray(x0, dtype=np.float64)
-        w0 = to_window_frame(x0[None], self.state_names)[0]
-        return from_window_frame(self.rollout(w0, controls), self.state_names, x0)
