@@ -42,7 +42,7 @@ __all__ = [
     "Cylinder", "SHAPES_2D", "SHAPES_3D", "shape_from_table", "top_view",
 ]
 
-_BISECT_MAX_ITERS = 100  # bisection halvings (stops earlier once converged to 1 ulp)
+_ROOT_MAX_ITERS = 100  # Newton steps of the ellipse/ellipsoid distance (it stops once converged)
 _MIN_OUTLINE_POINTS = 5
 
 
@@ -58,25 +58,30 @@ def _ellipsoid_root(e: np.ndarray, y: np.ndarray) -> np.ndarray:
     e: (k,) semi-axes sorted descending; y: (N, k) with y >= 0 and y[:, -1] > 0.
     Returns (N,) unsigned distances.  Solves G(u) = sum_i (w_i / (u + q_i))^2 - 1 = 0
     with w_i = e_i y_i / e_m^2, q_i = (e_i^2 - e_m^2) / e_m^2 (so q_m = 0); G is
-    strictly decreasing on u > 0 with G(z_m) >= 0 and G(|w|) <= 0, z_m = y_m / e_m.
+    strictly decreasing and convex on u > 0 with G(z_m) >= 0 and G(|w|) <= 0, z_m = y_m / e_m.
+    Newton's method from u = |w|: its first step lands left of the root (G convex), and from
+    there its iterates rise monotonically to it (quadratically), kept in [z_m, |w|]; it stops
+    once no iterate moves by more than a few ulp.
     The closest point is x_i = (e_i / e_m)^2 y_i / (u + q_i).
     """
     em2 = e[-1] ** 2
     q = (e**2 - em2) / em2
     w = e * y / em2
     lo = y[:, -1] / e[-1]
-    hi = np.maximum(np.linalg.norm(w, axis=1), lo)
-    for _ in range(_BISECT_MAX_ITERS):
-        mid = 0.5 * (lo + hi)
-        if not np.any((mid > lo) & (mid < hi)):
+    hi = np.maximum(np.sqrt((w * w).sum(axis=1)), lo)
+    u = hi
+    for _ in range(_ROOT_MAX_ITERS):
+        r = w / (u[:, None] + q)
+        r2 = r * r
+        g = r2.sum(axis=1) - 1.0
+        dg = -2.0 * (r2 / (u[:, None] + q)).sum(axis=1)
+        u_new = np.minimum(np.maximum(u - g / dg, lo), hi)
+        done = (np.abs(u_new - u) <= 4.0 * np.finfo(float).eps * u_new).all()
+        u = u_new
+        if done:
             break
-        g = np.sum((w / (mid[:, None] + q)) ** 2, axis=1) - 1.0
-        pos = g > 0.0
-        lo = np.where(pos, mid, lo)
-        hi = np.where(pos, hi, mid)
-    u = 0.5 * (lo + hi)
     x = (e**2 / em2) * y / (u[:, None] + q)
-    return np.linalg.norm(x - y, axis=1)
+    return np.sqrt(((x - y) ** 2).sum(axis=1))
 
 
 def _ellipse_dist(e: np.ndarray, y: np.ndarray) -> np.ndarray:

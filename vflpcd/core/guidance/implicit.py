@@ -26,6 +26,7 @@ shape's exact signed distance).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -193,16 +194,35 @@ def _sphere_directions(dim: int, n: int) -> np.ndarray:
 
 
 def _inflated_boundary(shape, distance: float, n: int) -> np.ndarray:
-    """Points (n, d), in the body frame, on {sd = distance} of a convex shape, by bisection along rays."""
+    """Points (n, d), in the body frame, on {sd = distance} of a convex shape, found along rays from
+    the centre by the Illinois variant of regula falsi (sd along a ray is convex and increasing
+    past the shape, so the bracket [inside, outside] shrinks superlinearly); each point returned is
+    on the outer side, within 1e-12 m."""
     dirs = _sphere_directions(shape.dim, n)
     zero = np.zeros(shape.dim)
-    lo = np.zeros(len(dirs))
-    hi = np.full(len(dirs), shape.bounding_radius() + distance + 1.0)
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        inside = shape.signed_distance(dirs * mid[:, None], zero, 0.0) <= distance
-        lo, hi = np.where(inside, mid, lo), np.where(inside, hi, mid)
-    return dirs * hi[:, None]
+
+    def f(t):
+        return shape.signed_distance(dirs * t[:, None], zero, 0.0) - distance
+
+    a, b = np.zeros(len(dirs)), np.full(len(dirs), shape.bounding_radius() + distance + 1.0)
+    fa, fb = f(a), f(b)
+    side = np.zeros(len(dirs))                 # which end was kept last time: -1 a, +1 b
+    for _ in range(100):
+        with np.errstate(invalid="ignore", divide="ignore"):       # a closed bracket: 0 / 0
+            c = b - fb * (b - a) / (fb - fa)
+        c = np.where((c > a) & (c < b), c, 0.5 * (a + b))
+        fc = f(c)
+        out = fc > 0.0
+        # Illinois: halve the value at an end kept twice in a row, so both ends move
+        fa = np.where(out & (side == -1), 0.5 * fa, fa)
+        fb = np.where(~out & (side == 1), 0.5 * fb, fb)
+        a, fa = np.where(out, a, c), np.where(out, fa, fc)
+        closes = out | (fc == 0.0)                 # an exact root closes the bracket
+        b, fb = np.where(closes, c, b), np.where(closes, fc, fb)
+        side = np.where(out, -1.0, 1.0)
+        if (b - a).max() < 1e-12:
+            break
+    return dirs * b[:, None]
 
 
 class ObstacleImplicit:
@@ -233,18 +253,13 @@ class ObstacleImplicit:
         if repulsive_distance >= reactive_distance:
             raise GuidanceError(f"obstacle {name!r}: repulsive_distance ({repulsive_distance}) must be smaller "
                                 f"than reactive_distance ({reactive_distance})")
-        p, q, halfs = _EXPONENTS[shape.kind]
-        rays = rays or (720 if shape.dim == 2 else 2500)
-        base = halfs(shape) + reactive_distance
-        unit = cls(name, np.zeros(shape.dim), 0.0, np.zeros(shape.dim), 0.0, base, p, q, -0.5)
-        scale = 1.005 * np.max(unit.norm(_inflated_boundary(shape, reactive_distance, rays)))
-        axes = base * scale
-        inner = cls(name, np.zeros(shape.dim), 0.0, np.zeros(shape.dim), 0.0, axes, p, q, -0.5)
-        c = 1.005 * np.max(inner.norm(_inflated_boundary(shape, repulsive_distance, rays))) - 1.0
-        if c >= 0.0:
+        levels = _levels(shape, float(reactive_distance), float(repulsive_distance),
+                         rays or (720 if shape.dim == 2 else 2500))
+        if levels is None:
             raise GuidanceError(f"obstacle {name!r}: the reactive boundary does not leave room for the repulsive "
                                 "one; increase reactive_distance")
-        return cls(name, center, yaw, velocity, stamp, axes, p, q, c)
+        axes, p, q, c = levels
+        return cls(name, center, yaw, velocity, stamp, np.array(axes), p, q, c)
 
     def center_at(self, t: float) -> np.ndarray:
         return self.center + self.velocity * (t - self.stamp)
@@ -301,3 +316,19 @@ class ObstacleImplicit:
         zy = (-(x - cx) * s + (y - cy) * c) / self.axes[1]
         p = self.p
         return (abs(zx) ** p + abs(zy) ** p) ** (1.0 / p) - 1.0
+
+
+@functools.lru_cache(maxsize=1024)
+def _levels(shape, reactive_distance: float, repulsive_distance: float, rays: int):
+    """(axes, p, q, c) of the implicit function around ``shape`` (body frame): the superellipse
+    N(z) = 1 encloses the shape grown by reactive_distance (R) and N(z) = 1 + c the shape grown by
+    repulsive_distance (Q); None when Q does not fit inside R. A shape's levels depend on its
+    sizes alone, so a replan with the same obstacles finds them here."""
+    p, q, halfs = _EXPONENTS[shape.kind]
+    base = halfs(shape) + reactive_distance
+    zero = np.zeros(shape.dim)
+    unit = ObstacleImplicit("levels", zero, 0.0, zero, 0.0, base, p, q, -0.5)
+    axes = base * (1.005 * np.max(unit.norm(_inflated_boundary(shape, reactive_distance, rays))))
+    inner = ObstacleImplicit("levels", zero, 0.0, zero, 0.0, axes, p, q, -0.5)
+    c = 1.005 * np.max(inner.norm(_inflated_boundary(shape, repulsive_distance, rays))) - 1.0
+    return None if c >= 0.0 else (tuple(axes.tolist()), p, q, float(c))
