@@ -16,12 +16,13 @@ setup: $(BIN)/.installed
 demo: $(BIN)/.installed
 	$(BIN)/vflpcd run config/missions/vehicle_can.toml --with-sitl --log-dir results/demo --plot
 
+# four workers on two cores: most of the integration tests wait on real time (missions, SITL)
 test: $(BIN)/.installed
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q -n 4 --dist worksteal
 
 # the inner loop: the unit tests only (no real-time missions, SITL or benches)
 test-fast: $(BIN)/.installed
-	$(BIN)/pytest -q tests/unit
+	$(BIN)/pytest -q -n 3 --dist worksteal tests/unit
 
 clean:
 	rm -rf $(VENV) results .pytest_cache *.egg-info

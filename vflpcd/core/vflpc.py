@@ -45,6 +45,7 @@ from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
 from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
+from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.ports import ControllerBase, ControllerStatus
 
@@ -53,8 +54,11 @@ log = logging.getLogger("vflpcd.core.vflpc")
 
 @dataclass(frozen=True)
 class ReplanJob:
-    """A due guidance replan: path arc length s of the robot, its position pos (d,), velocity
-    vel (d,), heading (rad, 2-D only) at time t, and the obstacles it was due for."""
+    """A due guidance replan: path arc length s of the robot, the plan's start position pos (d,),
+    velocity vel (d,) and heading (rad, 2-D only) at time t (the reference being followed, or the
+    robot's own when it is off that reference), the obstacles it was due for, and the robot's own
+    (pos, vel, heading) to start from instead when the reference's point admits no plan (None: the
+    start is the robot's)."""
 
     s: float
     pos: np.ndarray
@@ -62,6 +66,7 @@ class ReplanJob:
     heading: float | None
     t: float
     obstacles: tuple[ObstacleState, ...]
+    robot: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -73,15 +78,23 @@ class PlanResult:
 
 
 def plan_job(planner, job: ReplanJob) -> PlanResult:
-    """Run a replan (worker side; raises GuidanceError when no plan exists)."""
+    """Run a replan (worker side; raises GuidanceError when no plan exists): from the job's start,
+    or, when that admits none (e.g. a new obstacle covers the reference's point), from the robot."""
     statics = [o for o in job.obstacles if not o.moving]
     movers = [o for o in job.obstacles if o.moving]
     prepared = planner.prepare(job.s, statics)
-    speed = float(np.linalg.norm(job.vel))
-    if job.heading is not None:
-        plan = planner.plan(prepared, job.pos, job.t, speed, movers, heading=job.heading)
-    else:
-        plan = planner.plan(prepared, job.pos, job.t, speed, movers)
+
+    def plan_from(pos, vel, heading):
+        speed = float(np.linalg.norm(vel))
+        if heading is not None:
+            return planner.plan(prepared, pos, job.t, speed, movers, heading=heading)
+        return planner.plan(prepared, pos, job.t, speed, movers)
+    try:
+        plan = plan_from(job.pos, job.vel, job.heading)
+    except GuidanceError:
+        if job.robot is None:
+            raise
+        plan = plan_from(*job.robot)
     return PlanResult(plan, bool(prepared.ends_path))
 
 
@@ -110,6 +123,8 @@ class VFLPCParams:
     max_threats: int
     end_margin: float
     velocity_change: float
+    join_radius: float = 1.0
+    join_tolerance: float = 0.5
     refit_every: int = 100
     refit_min_samples: int = 60
     R_rate: np.ndarray | None = None
@@ -220,6 +235,7 @@ class VFLPC(ControllerBase):
         self._pending: ReplanJob | None = None
         self._asked: tuple[ReplanJob, dict[str, np.ndarray], int] | None = None
         self._last_inputs = None
+        self._t_last: float | None = None       # the time of the last step
         self.fallbacks = 0
         self.replans = 0
         self.replan_failures = 0
@@ -236,6 +252,7 @@ class VFLPC(ControllerBase):
 
     def step(self, state: np.ndarray, t: float, obstacles: Sequence[ObstacleState] = ()) -> np.ndarray:
         state, obstacles, pos, vel = self._inputs(state, obstacles)
+        self._t_last = float(t)
         self._guidance(pos, vel, state, t, obstacles)
         ref = self._reference(t)
         frame = self.errors.frame(state, ref)
@@ -282,20 +299,61 @@ class VFLPC(ControllerBase):
         """The due replan, handed out once (None when none is due). ``force_at``: a time t at which
         a replan is wanted even if none is due (a periodic refresh): it is made from the last state."""
         job, self._pending = self._pending, None
-        if job is None and force_at is not None and self._last_inputs is not None:
-            pos, vel, heading, obstacles = self._last_inputs
-            job = ReplanJob(self._s, pos, vel, heading, float(force_at), obstacles)
+        if job is None and force_at is not None:
+            job = self._fresh_job(float(force_at))
         return job
 
+    def _fresh_job(self, t: float) -> ReplanJob | None:
+        """A replan at time t from the last state and obstacles seen (None before the first step)."""
+        if self._last_inputs is None:
+            return None
+        pos, vel, heading, obstacles = self._last_inputs
+        return self._job(pos, vel, heading, t, obstacles)
+
+    def _job(self, pos, vel, heading, t: float, obstacles) -> ReplanJob:
+        """A replan at time t that starts from the reference being followed when the robot (pos,
+        vel, heading) is within ``join_radius`` of it (the robot's state is its fallback), else from
+        the robot (module docstring of ``vflpcd.core.guidance.splice``)."""
+        plan = self._plan
+        if plan is None or t > plan.trajectory.t[-1]:
+            return ReplanJob(self._s, pos, vel, heading, t, obstacles)
+        ref = plan.trajectory.sample(np.array([t, t + self.dt]))
+        r_pos = ref["pos"][0]
+        if np.linalg.norm(r_pos - pos) > self.params.join_radius:
+            return ReplanJob(self._s, pos, vel, heading, t, obstacles)
+        step = ref["pos"][1] - r_pos
+        norm = float(np.linalg.norm(step))
+        if norm > 1e-9:
+            direction = step / norm
+        else:
+            direction = np.zeros(self.dim)
+            direction[:2] = np.cos(ref["psi"][0]), np.sin(ref["psi"][0])
+        r_heading = float(np.arctan2(direction[1], direction[0])) if heading is not None else None
+        return ReplanJob(self._s, r_pos, float(ref["v"][0]) * direction, r_heading, t, obstacles,
+                         robot=(pos, vel, heading))
+
     def install_plan(self, job: ReplanJob, result: PlanResult) -> None:
-        """Take a finished replan (between two ticks); the next step uses it. A replan that
-        ``plan_gate`` refuses is a failed one (the previous plan stays)."""
+        """Take a finished replan (between two ticks); the next step uses it. It is spliced onto the
+        reference being followed (``vflpcd.core.guidance.splice``: re-timed from the old reference's
+        point and speed at the last tick); a splice that would meet a moving obstacle is stale, and a
+        replan that ``plan_gate`` refuses is refused: both are failed replans (the previous plan
+        stays; a stale one is asked again from the present state)."""
+        plan = result.plan
+        if self._plan is not None and self._t_last is not None:
+            t = np.array([self._t_last])
+            old, new = self._plan.trajectory.sample(t), plan.trajectory.sample(t)
+            if np.linalg.norm(new["pos"][0] - old["pos"][0]) > self.params.join_tolerance:
+                plan = self.planner.splice(plan, old["pos"][0], float(old["v"][0]), self._t_last)
+                if plan is None:
+                    self.replan_failed(job, "stale: re-timed from the present reference it meets a moving obstacle")
+                    self._pending = self._fresh_job(self._t_last)
+                    return
         if self.plan_gate is not None and self._plan is not None:
-            refused = self.plan_gate(result.plan)
+            refused = self.plan_gate(plan)
             if refused is not None:
                 self.replan_failed(job, f"refused: {refused}")
                 return
-        self._plan, self._ends_path = result.plan, result.ends_path
+        self._plan, self._ends_path = plan, result.ends_path
         self._signature = {o.id: o.velocity for o in job.obstacles}
         if self._asked is not None and self._asked[0] is job:
             self._asked = None              # the newest picture asked for is the one now planned
@@ -372,7 +430,7 @@ class VFLPC(ControllerBase):
         if not due:
             return
         heading = float(state[self.errors.layout.heading]) if self.dim == 2 else None
-        job = ReplanJob(self._s, pos, vel, heading, t, obstacles)
+        job = self._job(pos, vel, heading, t, obstacles)
         if plan is None:
             self.install_plan(job, plan_job(self.planner, job))   # no reference yet: plan at once
         else:

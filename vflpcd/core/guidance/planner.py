@@ -35,6 +35,7 @@ from vflpcd.core.guidance.grid import FieldGrid, Integration, integrate
 from vflpcd.core.guidance.implicit import E, GraphPath, GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.params import GuidanceParams
 from vflpcd.core.guidance.speed import plan_speed, smooth_path, step_times
+from vflpcd.core.guidance.splice import SpeedLimits, splice
 from vflpcd.core.guidance.trajectory import Trajectory, timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
@@ -139,10 +140,23 @@ class PlannerBase:
 
     @staticmethod
     def _values(o: ObstacleImplicit, xy: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """varphi at points xy (K, d) reached at times t (K,) (one evaluation for a static obstacle)."""
+        """varphi at points xy (K, d) reached at times t (K,): a centre moving at constant velocity
+        gives varphi(p, t) = varphi(p - v (t - stamp), stamp)."""
         if not np.any(o.velocity):
             return o.value(xy)
-        return np.array([o.value(q[None, :], tk)[0] for q, tk in zip(xy, t)])
+        return o.value(xy - (np.asarray(t)[:, None] - o.stamp) * o.velocity, o.stamp)
+
+    def splice(self, plan: GuidancePlan, anchor: np.ndarray, v_anchor: float, t_now: float) -> GuidancePlan | None:
+        """``plan`` re-timed to continue the reference being followed: through ``anchor`` (d,) at
+        ``t_now`` at speed ``v_anchor`` (``vflpcd.core.guidance.splice``); None when it would then
+        meet a moving obstacle it was planned around."""
+        p, movers = self.params, plan.field.movers
+
+        def moving_values(pos, t):
+            return [(self._values(m.implicit, pos, t), m.implicit.c) for m in movers]
+        return splice(plan, anchor, v_anchor, t_now, self.dt,
+                      SpeedLimits(self.v_desired, self.a_lat_max, p.a_accel, p.a_decel),
+                      moving_values if movers else None)
 
 
 def _value_grad_at_times(o: ObstacleImplicit, pts: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

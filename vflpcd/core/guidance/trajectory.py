@@ -36,10 +36,15 @@ class Trajectory:
         return np.column_stack([self.pos[:, 0], self.pos[:, 1], self.psi, self.v, np.zeros_like(self.v), self.omega])
 
     def sample(self, t) -> dict[str, np.ndarray]:
-        """Linear interpolation of every series at times t (scalar or (K,)), clamped to the ends."""
+        """Linear interpolation of every series at times t (scalar or (K,)), clamped to the ends;
+        after the end the reference stands at its last point: speed, yaw rate and acceleration 0."""
         t = np.asarray(t, float)
         out = {name: np.interp(t, self.t, getattr(self, name)) for name in ("psi", "v", "omega", "accel", "kappa", "s")}
         out["pos"] = np.stack([np.interp(t, self.t, self.pos[:, j]) for j in range(self.pos.shape[1])], axis=-1)
+        after = t > self.t[-1]
+        if np.any(after):
+            for name in ("v", "omega", "accel"):
+                out[name] = np.where(after, 0.0, out[name])
         return out
 
 

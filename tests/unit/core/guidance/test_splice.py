@@ -1,0 +1,106 @@
+"""Plans that join: a replan installed late continues the reference being followed (its point and
+speed), and VF-LPC's replans start from that reference, so an installation is no step."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from vflpcd.base.paths import config_dir
+from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.config.params import guidance_params
+from vflpcd.core.guidance.planner import GuidancePlanner
+from vflpcd.core.guidance.splice import nearest_on_polyline
+from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.path import ReferencePath
+from vflpcd.core.shapes import Circle
+
+
+@pytest.fixture(scope="module")
+def planner():
+    params = guidance_params(Table(load_toml(config_dir() / "guidance.toml"), "guidance.toml"))
+    return GuidancePlanner(ReferencePath.line([0.0, 0.0], [120.0, 0.0]), params, 6.0, 3.0, body_radius=1.0,
+                           control_period=0.05)
+
+
+def plan_from(planner, pos, t0, v0, movers=()):
+    prepared = planner.prepare(float(pos[0]), [])
+    return planner.plan(prepared, np.asarray(pos, float), t0, v0, list(movers), heading=0.0)
+
+
+def test_nearest_point_on_a_polyline():
+    xy = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0]])
+    assert nearest_on_polyline(xy, np.array([1.5, -1.0])) == pytest.approx((0, 0.75, 1.0))
+    assert nearest_on_polyline(xy, np.array([3.0, 1.0])) == pytest.approx((1, 0.5, 1.0))
+
+
+def test_a_plan_installed_ten_seconds_late_continues_from_the_stopped_reference(planner):
+    # planned at t = 0 from x = 10 at 6 m/s; meanwhile the robot stopped at x = 20 (its old plan ended)
+    late = plan_from(planner, [10.0, 0.0], 0.0, 6.0)
+    t_now = 10.0
+    assert late.trajectory.sample(np.array([t_now]))["pos"][0, 0] > 60.0      # as planned: 40 m ahead
+    spliced = planner.splice(late, np.array([20.0, 0.0]), 0.0, t_now)
+    now = spliced.trajectory.sample(np.array([t_now, t_now + 1.0]))
+    assert now["pos"][0] == pytest.approx([20.0, 0.0], abs=1e-6) and now["v"][0] == pytest.approx(0.0, abs=1e-9)
+    # it starts off at the speed plan's acceleration limit, not at the planned 6 m/s
+    a = planner.params.a_accel
+    assert now["pos"][1, 0] - 20.0 == pytest.approx(0.5 * a * 1.0 ** 2, rel=0.15)
+    assert spliced.xy[-1] == pytest.approx(late.xy[-1])                       # the same path ahead
+
+
+def test_a_splice_continues_a_moving_reference_at_its_speed(planner):
+    plan = plan_from(planner, [0.0, 0.0], 0.0, 6.0)
+    spliced = planner.splice(plan, np.array([30.3, 0.0]), 5.2, 7.0)
+    now = spliced.trajectory.sample(np.array([7.0]))
+    assert now["pos"][0] == pytest.approx([30.3, 0.0], abs=1e-6) and now["v"][0] == pytest.approx(5.2, abs=0.05)
+
+
+def test_a_splice_that_would_meet_a_moving_obstacle_is_stale(planner):
+    # a walker crossing at x = 40 is passed as planned; re-timed 4 s later the car would meet it
+    walker = ObstacleState(id="walker", shape=Circle(0.4), center=np.array([40.0, -12.0]), yaw=0.0,
+                           velocity=np.array([0.0, 1.5]), stamp=0.0)
+    plan = plan_from(planner, [10.0, 0.0], 0.0, 6.0, [walker])
+    assert planner.splice(plan, np.array([10.0, 0.0]), 6.0, 0.0) is not None   # on time: it joins
+    late = [planner.splice(plan, np.array([10.0, 0.0]), 6.0, dt) for dt in np.arange(0.5, 8.0, 0.5)]
+    assert any(p is None for p in late)
+
+
+def test_after_its_end_a_reference_stands_still():
+    from vflpcd.core.guidance.trajectory import timed_trajectory
+
+    xy = np.column_stack([np.linspace(0, 10, 41), np.zeros(41)])
+    s = np.linspace(0, 10, 41)
+    traj = timed_trajectory(xy, s, np.full(41, 5.0), 0.0, 0.05)
+    after = traj.sample(np.array([traj.t[-1] + 1.0]))
+    assert after["pos"][0] == pytest.approx([10.0, 0.0]) and after["v"][0] == 0.0 and after["omega"][0] == 0.0
+    assert traj.sample(np.array([1.0]))["v"][0] == pytest.approx(5.0)
+
+
+def test_vflpc_replans_start_from_the_reference_and_install_without_a_step(tmp_path):
+    from sim.plants import make_plant
+    from vflpcd.config.scenarios import line_scenario_toml, load_scenario
+    from vflpcd.controllers.vflpc import make_vflpc
+
+    f = tmp_path / "line.toml"
+    f.write_text(line_scenario_toml("line", length=120.0, speed=6.0, t_max=30.0))
+    sc = load_scenario(f)
+    ctl = make_vflpc(sc)
+    plant = make_plant(sc, 0)
+    dt = sc.control_period
+    jumps, starts = [], []
+    for k in range(300):
+        t = k * dt
+        u = ctl.step(plant.state, t)
+        plant.step(u, dt)
+        job = ctl.take_replan(force_at=t if k % 40 == 39 else None)
+        if job is not None:
+            ref_before = ctl.reference_at(t + dt)
+            starts.append(np.linalg.norm(job.pos - ctl.reference_at(t)))
+            from vflpcd.core.vflpc import plan_job
+            ctl.install_plan(job, plan_job(ctl.planner, job))
+            jumps.append(np.linalg.norm(ctl.reference_at(t + dt) - ref_before))
+    assert len(jumps) >= 5
+    assert max(starts) < 1e-9                       # each replan started at the reference's point
+    assert max(jumps) < 0.05                        # and the reference went on where it was

@@ -1,0 +1,72 @@
+"""Joining a finished replan to the reference being followed (the splice).
+
+A replan is planned from the robot's state when it was asked for (time t_j) and installed
+between two ticks some latency later (t_now). Installed as planned, its reference at t_now is
+where the robot would be had it followed the new plan since t_j: a step in position and speed
+whenever the old and the new timing differ, and, after a long latency (a loaded computer), far
+ahead of a robot that has meanwhile stopped at the end of its old plan.
+
+The splice keeps the new path and times it again from the point being followed now: the old
+reference at t_now, r_old, projected onto the new path (its nearest point), with the old
+reference's speed there, v_old, as the speed plan's start (section III-A: forward and backward
+passes from v_start = v_old); the trajectory is timed so that it passes the projection at t_now.
+So the reference's position (up to the new path's offset from the old one), speed, and along the
+path its heading and curvature continue across the installation. A re-timed plan that would
+meet a moving obstacle's repulsive region at its new times is stale (``None``): the caller asks
+for a new one from the present state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from vflpcd.core.guidance.speed import plan_speed
+from vflpcd.core.guidance.trajectory import timed_trajectory
+
+
+@dataclass(frozen=True)
+class SpeedLimits:
+    """The speed plan's limits: desired speed, lateral acceleration, longitudinal accel / decel."""
+
+    v_desired: float
+    a_lat_max: float
+    a_accel: float
+    a_decel: float
+
+
+def nearest_on_polyline(xy: np.ndarray, point: np.ndarray) -> tuple[int, float, float]:
+    """The point of the polyline xy (K, d) nearest ``point`` (d,): (segment k, fraction f in
+    [0, 1] along xy[k] -> xy[k + 1], distance)."""
+    a, d = xy[:-1], np.diff(xy, axis=0)
+    dd = (d * d).sum(axis=1)
+    f = np.clip(((point - a) * d).sum(axis=1) / np.where(dd > 0.0, dd, 1.0), 0.0, 1.0)
+    gap = a + f[:, None] * d - point
+    dist2 = (gap * gap).sum(axis=1)
+    k = int(np.argmin(dist2))
+    return k, float(f[k]), float(np.sqrt(dist2[k]))
+
+
+def splice(plan, anchor: np.ndarray, v_anchor: float, t_now: float, dt: float, limits: SpeedLimits,
+           moving_values=None):
+    """``plan`` (a ``GuidancePlan``) re-timed to pass ``anchor`` (d,) at ``t_now`` at speed
+    ``v_anchor`` (module docstring); ``moving_values(pos (M, d), t (M,))`` gives, for each moving
+    obstacle the plan was made around, (values, c): the plan is stale (None) when a re-timed point
+    has value <= c. A plan with fewer than three points ahead of the anchor is returned as it is."""
+    xy = plan.xy
+    k, f, _ = nearest_on_polyline(xy, np.asarray(anchor, float))
+    start = xy[k] + f * (xy[k + 1] - xy[k])
+    rest = xy[k + 1:] if f <= 0.5 else xy[k + 2:]            # no segment shorter than half a step
+    if len(rest) < 2:
+        return plan
+    pts = np.vstack([start, rest])
+    v_end = 0.0 if plan.v[-1] <= 1e-9 else None
+    s, kappa, v = plan_speed(pts, limits.v_desired, limits.a_lat_max, limits.a_accel, limits.a_decel,
+                             max(float(v_anchor), 0.0), v_end=v_end)
+    trajectory = timed_trajectory(pts, s, v, t_now, dt)
+    if moving_values is not None:
+        for values, c in moving_values(trajectory.pos, trajectory.t):
+            if np.any(values <= c):
+                return None
+    return replace(plan, trajectory=trajectory, xy=pts, s=s, kappa=kappa, v=v)
