@@ -13,9 +13,10 @@ from vflpcd.config.scenarios import line_scenario_toml
 def write_mission(folder: Path, *, route: str | None = None, length: float = 200.0, rate_hz: float = 50.0,
                   executor: str = "thread", telemetry_port: int | None = None, hold: float = 1.5,
                   extra: str = "", platform_extra: str = "", compensation: bool = False,
-                  telemetry_extra: str = "") -> Path:
+                  telemetry_extra: str = "", state_max_age: float = 0.25) -> Path:
     """A mission on a straight road of ``length`` m (or the named ``route``), in-process vehicle,
-    VF-LPC; telemetry on ``telemetry_port`` (off without one); logs in folder/logs."""
+    VF-LPC; telemetry on ``telemetry_port`` (off without one); logs in folder/logs. ``state_max_age``:
+    0.25 s unless a test is about stale states (a test process shares two cores with the others)."""
     if route is None:
         (folder / "line.toml").write_text(line_scenario_toml("line", length=length, speed=5.0, t_max=200.0))
         route = "line.toml"
@@ -36,7 +37,7 @@ rate_hz = {rate_hz}
 executor = "{executor}"
 {telemetry}
 [failsafe]
-state_max_age = 0.1
+state_max_age = {state_max_age}
 overrun_streak = 5
 stall = 0.4
 hold = {hold}

@@ -27,7 +27,7 @@ CASES = {
 
 @pytest.mark.parametrize("fault", list(CASES))
 def test_failsafe_fires_within_two_ticks_and_the_vehicle_stops(fault, mission_file):
-    mission = load_mission(mission_file(rate_hz=RATE, hold=1.5))
+    mission = load_mission(mission_file(rate_hz=RATE, hold=1.5, state_max_age=0.1))
     result = run_mission(mission, drill=Drill(fault, 1.0))
     loop, outcome = result.outcome.loop, result.outcome
     platform, drill = loop.platform, loop.controller

@@ -70,8 +70,10 @@ def test_garbage_on_the_station_port_does_not_disturb_the_link(autopilot):
             if i % 3 == 0:
                 data = b"\xfd" + data                                      # looks like a MAVLink 2 start
             sock.sendto(data, ("127.0.0.1", port))
-            if i % 100 == 0:
-                await asyncio.sleep(0.04)                                    # 4 telemetry periods
+            if i % 100 == 0:                                                 # a new state after each burst
+                before, deadline = d.latest_state().stamp_ns, time.monotonic() + 1.0
+                while d.latest_state().stamp_ns == before and time.monotonic() < deadline:
+                    await asyncio.sleep(0.01)
                 stamps.append(d.latest_state().stamp_ns)
         sock.close()
         await asyncio.sleep(0.1)
