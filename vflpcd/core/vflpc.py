@@ -5,8 +5,9 @@ Every ``step(state, t, obstacles)``:
 2. guidance (``Main``, lines "reaching the end of the guiding trajectory"): plans the GVF
    reference at once when none exists; a replan that is due (fewer than N dt + end_margin seconds
    of reference left, or the obstacle picture changed: an obstacle appeared, went or changed
-   velocity) is left to ``background()``, and the next step uses it; a failed replan keeps the
-   previous reference and is counted;
+   velocity) is handed out as a worker job (below), planned from the robot's state; a plan that
+   arrives late joins the reference being followed (re-timed from it: ``vflpcd.core.guidance.splice``);
+   a failed replan keeps the previous reference and is counted;
 3. builds the horizon problem in the lifted error space (``error_model``), with the GP
    correction when an online compensator has a model;
 4. switches the barrier on for every moving obstacle in the pursuer-evader region E_p (``game_region``;
@@ -45,7 +46,6 @@ from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
 from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
-from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.ports import ControllerBase, ControllerStatus
 
@@ -54,11 +54,8 @@ log = logging.getLogger("vflpcd.core.vflpc")
 
 @dataclass(frozen=True)
 class ReplanJob:
-    """A due guidance replan: path arc length s of the robot, the plan's start position pos (d,),
-    velocity vel (d,) and heading (rad, 2-D only) at time t (the reference being followed, or the
-    robot's own when it is off that reference), the obstacles it was due for, and the robot's own
-    (pos, vel, heading) to start from instead when the reference's point admits no plan (None: the
-    start is the robot's)."""
+    """A due guidance replan: path arc length s of the robot, its position pos (d,), velocity
+    vel (d,), heading (rad, 2-D only) at time t, and the obstacles it was due for."""
 
     s: float
     pos: np.ndarray
@@ -66,7 +63,6 @@ class ReplanJob:
     heading: float | None
     t: float
     obstacles: tuple[ObstacleState, ...]
-    robot: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -78,23 +74,15 @@ class PlanResult:
 
 
 def plan_job(planner, job: ReplanJob) -> PlanResult:
-    """Run a replan (worker side; raises GuidanceError when no plan exists): from the job's start,
-    or, when that admits none (e.g. a new obstacle covers the reference's point), from the robot."""
+    """Run a replan (worker side; raises GuidanceError when no plan exists)."""
     statics = [o for o in job.obstacles if not o.moving]
     movers = [o for o in job.obstacles if o.moving]
     prepared = planner.prepare(job.s, statics)
-
-    def plan_from(pos, vel, heading):
-        speed = float(np.linalg.norm(vel))
-        if heading is not None:
-            return planner.plan(prepared, pos, job.t, speed, movers, heading=heading)
-        return planner.plan(prepared, pos, job.t, speed, movers)
-    try:
-        plan = plan_from(job.pos, job.vel, job.heading)
-    except GuidanceError:
-        if job.robot is None:
-            raise
-        plan = plan_from(*job.robot)
+    speed = float(np.linalg.norm(job.vel))
+    if job.heading is not None:
+        plan = planner.plan(prepared, job.pos, job.t, speed, movers, heading=job.heading)
+    else:
+        plan = planner.plan(prepared, job.pos, job.t, speed, movers)
     return PlanResult(plan, bool(prepared.ends_path))
 
 
@@ -123,7 +111,6 @@ class VFLPCParams:
     max_threats: int
     end_margin: float
     velocity_change: float
-    join_radius: float = 1.0
     join_tolerance: float = 0.5
     refit_every: int = 100
     refit_min_samples: int = 60
@@ -308,29 +295,7 @@ class VFLPC(ControllerBase):
         if self._last_inputs is None:
             return None
         pos, vel, heading, obstacles = self._last_inputs
-        return self._job(pos, vel, heading, t, obstacles)
-
-    def _job(self, pos, vel, heading, t: float, obstacles) -> ReplanJob:
-        """A replan at time t that starts from the reference being followed when the robot (pos,
-        vel, heading) is within ``join_radius`` of it (the robot's state is its fallback), else from
-        the robot (module docstring of ``vflpcd.core.guidance.splice``)."""
-        plan = self._plan
-        if plan is None or t > plan.trajectory.t[-1]:
-            return ReplanJob(self._s, pos, vel, heading, t, obstacles)
-        ref = plan.trajectory.sample(np.array([t, t + self.dt]))
-        r_pos = ref["pos"][0]
-        if np.linalg.norm(r_pos - pos) > self.params.join_radius:
-            return ReplanJob(self._s, pos, vel, heading, t, obstacles)
-        step = ref["pos"][1] - r_pos
-        norm = float(np.linalg.norm(step))
-        if norm > 1e-9:
-            direction = step / norm
-        else:
-            direction = np.zeros(self.dim)
-            direction[:2] = np.cos(ref["psi"][0]), np.sin(ref["psi"][0])
-        r_heading = float(np.arctan2(direction[1], direction[0])) if heading is not None else None
-        return ReplanJob(self._s, r_pos, float(ref["v"][0]) * direction, r_heading, t, obstacles,
-                         robot=(pos, vel, heading))
+        return ReplanJob(self._s, pos, vel, heading, t, obstacles)
 
     def install_plan(self, job: ReplanJob, result: PlanResult) -> None:
         """Take a finished replan (between two ticks); the next step uses it. It is spliced onto the
@@ -430,7 +395,7 @@ class VFLPC(ControllerBase):
         if not due:
             return
         heading = float(state[self.errors.layout.heading]) if self.dim == 2 else None
-        job = self._job(pos, vel, heading, t, obstacles)
+        job = ReplanJob(self._s, pos, vel, heading, t, obstacles)
         if plan is None:
             self.install_plan(job, plan_job(self.planner, job))   # no reference yet: plan at once
         else:

@@ -78,29 +78,34 @@ def test_after_its_end_a_reference_stands_still():
     assert traj.sample(np.array([1.0]))["v"][0] == pytest.approx(5.0)
 
 
-def test_vflpc_replans_start_from_the_reference_and_install_without_a_step(tmp_path):
+def test_vflpc_installs_a_late_replan_where_its_reference_stands(tmp_path):
+    """The robot stops at the end of its plan while a replan made 8 s earlier is still out; once
+    installed, the reference goes on from where the robot waits, not 8 s down the new plan."""
     from sim.plants import make_plant
     from vflpcd.config.scenarios import line_scenario_toml, load_scenario
     from vflpcd.controllers.vflpc import make_vflpc
+    from vflpcd.core.vflpc import plan_job
 
     f = tmp_path / "line.toml"
-    f.write_text(line_scenario_toml("line", length=120.0, speed=6.0, t_max=30.0))
+    f.write_text(line_scenario_toml("line", length=150.0, speed=6.0, t_max=60.0))
     sc = load_scenario(f)
     ctl = make_vflpc(sc)
     plant = make_plant(sc, 0)
-    dt = sc.control_period
-    jumps, starts = [], []
-    for k in range(300):
-        t = k * dt
-        u = ctl.step(plant.state, t)
-        plant.step(u, dt)
-        job = ctl.take_replan(force_at=t if k % 40 == 39 else None)
-        if job is not None:
-            ref_before = ctl.reference_at(t + dt)
-            starts.append(np.linalg.norm(job.pos - ctl.reference_at(t)))
-            from vflpcd.core.vflpc import plan_job
-            ctl.install_plan(job, plan_job(ctl.planner, job))
-            jumps.append(np.linalg.norm(ctl.reference_at(t + dt) - ref_before))
-    assert len(jumps) >= 5
-    assert max(starts) < 1e-9                       # each replan started at the reference's point
-    assert max(jumps) < 0.05                        # and the reference went on where it was
+    dt, job, k = sc.control_period, None, 0
+    while job is None:                                  # drive until a replan is due
+        ctl.step(plant.state, k * dt)
+        plant.step(ctl._u_prev, dt)
+        job = ctl.take_replan()
+        k += 1
+    t_job = k * dt
+    end = ctl.current_plan.trajectory.t[-1]
+    while k * dt < max(end, t_job) + 8.0:              # the old plan runs out, the robot stops at its end
+        plant.step(ctl.step(plant.state, k * dt), dt)
+        k += 1
+    t = (k - 1) * dt
+    stood = ctl.reference_at(t)
+    late = plan_job(ctl.planner, job)
+    assert np.linalg.norm(late.plan.trajectory.sample(np.array([t]))["pos"][0] - stood) > 20.0
+    ctl.install_plan(job, late)
+    assert np.linalg.norm(ctl.reference_at(t) - stood) < 0.05           # up to the paths' offset
+    assert np.linalg.norm(ctl.reference_at(t + 1.0) - stood) < 0.6 * ctl.planner.params.a_accel
