@@ -6,8 +6,8 @@ Every ``step(state, t, obstacles)``:
    reference at once when none exists; a replan that is due (fewer than N dt + end_margin seconds
    of reference left, or the obstacle picture changed: an obstacle appeared, went or changed
    velocity) is handed out as a worker job (below), planned from the robot's state; a plan that
-   arrives late joins the reference being followed (re-timed from it: ``vflpcd.core.guidance.splice``);
-   a failed replan keeps the previous reference and is counted;
+   arrives late is re-timed from the robot (``vflpcd.core.guidance.splice``); a failed replan keeps
+   the previous reference and is counted;
 3. builds the horizon problem in the lifted error space (``error_model``), with the GP
    correction when an online compensator has a model;
 4. switches the barrier on for every moving obstacle in the pursuer-evader region E_p (``game_region``;
@@ -298,19 +298,22 @@ class VFLPC(ControllerBase):
         return ReplanJob(self._s, pos, vel, heading, t, obstacles)
 
     def install_plan(self, job: ReplanJob, result: PlanResult) -> None:
-        """Take a finished replan (between two ticks); the next step uses it. It is spliced onto the
-        reference being followed (``vflpcd.core.guidance.splice``: re-timed from the old reference's
-        point and speed at the last tick); a splice that would meet a moving obstacle is stale, and a
-        replan that ``plan_gate`` refuses is refused: both are failed replans (the previous plan
-        stays; a stale one is asked again from the present state)."""
+        """Take a finished replan (between two ticks); the next step uses it. A plan whose reference
+        at the last tick lies farther from the robot than ``join_tolerance`` and than the old
+        reference did (it arrived late, the robot did not drive as it assumed) is re-timed from the
+        robot's point and speed (``vflpcd.core.guidance.splice``); one that would then meet a moving
+        obstacle is stale, and a replan that ``plan_gate`` refuses is refused: both are failed
+        replans (the previous plan stays; a stale one is asked again from the present state)."""
         plan = result.plan
         if self._plan is not None and self._t_last is not None:
+            pos, vel = self._last_inputs[0], self._last_inputs[1]
             t = np.array([self._t_last])
-            old, new = self._plan.trajectory.sample(t), plan.trajectory.sample(t)
-            if np.linalg.norm(new["pos"][0] - old["pos"][0]) > self.params.join_tolerance:
-                plan = self.planner.splice(plan, old["pos"][0], float(old["v"][0]), self._t_last)
+            d_new = float(np.linalg.norm(plan.trajectory.sample(t)["pos"][0] - pos))
+            d_old = float(np.linalg.norm(self._plan.trajectory.sample(t)["pos"][0] - pos))
+            if d_new > max(self.params.join_tolerance, d_old):
+                plan = self.planner.splice(plan, pos, float(np.linalg.norm(vel)), self._t_last)
                 if plan is None:
-                    self.replan_failed(job, "stale: re-timed from the present reference it meets a moving obstacle")
+                    self.replan_failed(job, "stale: re-timed from the robot it meets a moving obstacle")
                     self._pending = self._fresh_job(self._t_last)
                     return
         if self.plan_gate is not None and self._plan is not None:

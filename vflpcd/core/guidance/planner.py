@@ -147,9 +147,9 @@ class PlannerBase:
         return o.value(xy - (np.asarray(t)[:, None] - o.stamp) * o.velocity, o.stamp)
 
     def splice(self, plan: GuidancePlan, anchor: np.ndarray, v_anchor: float, t_now: float) -> GuidancePlan | None:
-        """``plan`` re-timed to continue the reference being followed: through ``anchor`` (d,) at
-        ``t_now`` at speed ``v_anchor`` (``vflpcd.core.guidance.splice``); None when it would then
-        meet a moving obstacle it was planned around."""
+        """``plan`` re-timed to start at the robot, ``anchor`` (d,), at ``t_now`` at speed ``v_anchor``
+        (``vflpcd.core.guidance.splice``); None when it would then meet a moving obstacle it was
+        planned around."""
         p, movers = self.params, plan.field.movers
 
         def moving_values(pos, t):

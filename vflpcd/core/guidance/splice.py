@@ -1,19 +1,18 @@
-"""Joining a finished replan to the reference being followed (the splice).
+"""Joining a late replan to the robot (the splice).
 
-A replan is planned from the robot's state when it was asked for (time t_j) and installed
-between two ticks some latency later (t_now). Installed as planned, its reference at t_now is
-where the robot would be had it followed the new plan since t_j: a step in position and speed
-whenever the old and the new timing differ, and, after a long latency (a loaded computer), far
-ahead of a robot that has meanwhile stopped at the end of its old plan.
+A replan is planned from the robot's state when it was asked for (time t_j) and installed between
+two ticks some latency later (t_now). As planned, its reference at t_now is where the robot would
+be had it driven the new plan since t_j; usually it nearly is (it kept driving its old plan at
+about that speed). When it is not, when the robot stopped at the end of its old plan while a
+loaded computer's worker planned, or was braked meanwhile, the reference at t_now lies far ahead
+of it, and the horizon problem would chase it.
 
-The splice keeps the new path and times it again from the point being followed now: the old
-reference at t_now, r_old, projected onto the new path (its nearest point), with the old
-reference's speed there, v_old, as the speed plan's start (section III-A: forward and backward
-passes from v_start = v_old); the trajectory is timed so that it passes the projection at t_now.
-So the reference's position (up to the new path's offset from the old one), speed, and along the
-path its heading and curvature continue across the installation. A re-timed plan that would
-meet a moving obstacle's repulsive region at its new times is stale (``None``): the caller asks
-for a new one from the present state.
+The splice keeps the new path and times it again as if it had been planned at t_now from the
+robot: from the path's first point at or after the robot's projection onto it (at most one path
+step ahead), with the robot's speed as the speed plan's start (section III-A: the forward and
+backward passes again), passed at t_now. The path's points, and so its curvature, are the plan's
+own. A re-timed plan that would meet a moving obstacle's repulsive region at its new times is
+stale (``None``): the caller asks for a new one from the present state.
 """
 
 from __future__ import annotations
@@ -50,17 +49,16 @@ def nearest_on_polyline(xy: np.ndarray, point: np.ndarray) -> tuple[int, float, 
 
 def splice(plan, anchor: np.ndarray, v_anchor: float, t_now: float, dt: float, limits: SpeedLimits,
            moving_values=None):
-    """``plan`` (a ``GuidancePlan``) re-timed to pass ``anchor`` (d,) at ``t_now`` at speed
-    ``v_anchor`` (module docstring); ``moving_values(pos (M, d), t (M,))`` gives, for each moving
-    obstacle the plan was made around, (values, c): the plan is stale (None) when a re-timed point
-    has value <= c. A plan with fewer than three points ahead of the anchor is returned as it is."""
+    """``plan`` (a ``GuidancePlan``) re-timed to start at ``anchor`` (d,), the robot, at ``t_now`` at
+    speed ``v_anchor`` (module docstring); ``moving_values(pos (M, d), t (M,))`` gives, for each
+    moving obstacle the plan was made around, (values, c): the plan is stale (None) when a re-timed
+    point has value <= c. A plan with fewer than three points ahead of the anchor is returned as
+    it is."""
     xy = plan.xy
-    k, f, _ = nearest_on_polyline(xy, np.asarray(anchor, float))
-    start = xy[k] + f * (xy[k + 1] - xy[k])
-    rest = xy[k + 1:] if f <= 0.5 else xy[k + 2:]            # no segment shorter than half a step
-    if len(rest) < 2:
+    k, _, _ = nearest_on_polyline(xy, np.asarray(anchor, float))
+    pts = xy[k + 1:]
+    if len(pts) < 3:
         return plan
-    pts = np.vstack([start, rest])
     v_end = 0.0 if plan.v[-1] <= 1e-9 else None
     s, kappa, v = plan_speed(pts, limits.v_desired, limits.a_lat_max, limits.a_accel, limits.a_decel,
                              max(float(v_anchor), 0.0), v_end=v_end)

@@ -1,5 +1,5 @@
-"""Plans that join: a replan installed late continues the reference being followed (its point and
-speed), and VF-LPC's replans start from that reference, so an installation is no step."""
+"""Late replans: a replan installed after the robot stopped (or was braked) is re-timed from the
+robot's point and speed instead of chasing a reference far ahead of it."""
 
 from __future__ import annotations
 
@@ -43,7 +43,8 @@ def test_a_plan_installed_ten_seconds_late_continues_from_the_stopped_reference(
     assert late.trajectory.sample(np.array([t_now]))["pos"][0, 0] > 60.0      # as planned: 40 m ahead
     spliced = planner.splice(late, np.array([20.0, 0.0]), 0.0, t_now)
     now = spliced.trajectory.sample(np.array([t_now, t_now + 1.0]))
-    assert now["pos"][0] == pytest.approx([20.0, 0.0], abs=1e-6) and now["v"][0] == pytest.approx(0.0, abs=1e-9)
+    step = planner.params.beta                                                # at most one path step ahead
+    assert now["pos"][0] == pytest.approx([20.0, 0.0], abs=step + 1e-6) and now["v"][0] == pytest.approx(0.0, abs=1e-9)
     # it starts off at the speed plan's acceleration limit, not at the planned 6 m/s
     a = planner.params.a_accel
     assert now["pos"][1, 0] - 20.0 == pytest.approx(0.5 * a * 1.0 ** 2, rel=0.15)
@@ -54,7 +55,10 @@ def test_a_splice_continues_a_moving_reference_at_its_speed(planner):
     plan = plan_from(planner, [0.0, 0.0], 0.0, 6.0)
     spliced = planner.splice(plan, np.array([30.3, 0.0]), 5.2, 7.0)
     now = spliced.trajectory.sample(np.array([7.0]))
-    assert now["pos"][0] == pytest.approx([30.3, 0.0], abs=1e-6) and now["v"][0] == pytest.approx(5.2, abs=0.05)
+    assert now["pos"][0] == pytest.approx([30.3, 0.0], abs=planner.params.beta + 1e-6)
+    assert now["v"][0] == pytest.approx(5.2, abs=0.05)
+    n = len(spliced.kappa)                                                    # the plan's own points:
+    assert spliced.kappa[2:] == pytest.approx(plan.kappa[-n:][2:], abs=1e-9)  # its curvature (ends aside)
 
 
 def test_a_splice_that_would_meet_a_moving_obstacle_is_stale(planner):
@@ -78,7 +82,7 @@ def test_after_its_end_a_reference_stands_still():
     assert traj.sample(np.array([1.0]))["v"][0] == pytest.approx(5.0)
 
 
-def test_vflpc_installs_a_late_replan_where_its_reference_stands(tmp_path):
+def test_vflpc_installs_a_late_replan_where_the_robot_stands(tmp_path):
     """The robot stops at the end of its plan while a replan made 8 s earlier is still out; once
     installed, the reference goes on from where the robot waits, not 8 s down the new plan."""
     from sim.plants import make_plant
@@ -103,9 +107,10 @@ def test_vflpc_installs_a_late_replan_where_its_reference_stands(tmp_path):
         plant.step(ctl.step(plant.state, k * dt), dt)
         k += 1
     t = (k - 1) * dt
-    stood = ctl.reference_at(t)
+    robot = plant.state[:2]
     late = plan_job(ctl.planner, job)
-    assert np.linalg.norm(late.plan.trajectory.sample(np.array([t]))["pos"][0] - stood) > 20.0
+    assert np.linalg.norm(late.plan.trajectory.sample(np.array([t]))["pos"][0] - robot) > 20.0
     ctl.install_plan(job, late)
-    assert np.linalg.norm(ctl.reference_at(t) - stood) < 0.05           # up to the paths' offset
-    assert np.linalg.norm(ctl.reference_at(t + 1.0) - stood) < 0.6 * ctl.planner.params.a_accel
+    assert ctl.replans == 2 and ctl.replan_failures == 0
+    assert np.linalg.norm(ctl.reference_at(t) - robot) < 0.2                  # one path step and the offset
+    assert np.linalg.norm(ctl.reference_at(t + 1.0) - robot) < 0.6 * ctl.planner.params.a_accel + 0.2
