@@ -53,7 +53,7 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
     sol.check_known({"i_max", "tol", "eta_a", "divergence"})
     feat.check_known({"error_std_ground", "error_std_aerial", "samples", "size", "nu", "ell_factor", "seed"})
     bar.check_known({"mu", "length", "l_safe", "max_threats"})
-    rep.check_known({"end_margin", "velocity_change", "join_tolerance"})
+    rep.check_known({"end_margin", "velocity_change", "join_tolerance", "stale_distance"})
     comp = root.table("compensation", {})
     comp.check_known({"refit_every", "min_samples", "channels", "ell", "sf2", "sn2", "nu", "m_max", "n_max"})
     q, r = cost.vector(f"q_{platform}"), cost.vector(f"r_{platform}")
@@ -81,6 +81,7 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
                max_threats=bar.integer("max_threats", min=0), end_margin=rep.number("end_margin", min=0.0),
                velocity_change=rep.number("velocity_change", positive=True),
                join_tolerance=rep.number("join_tolerance", 0.5, min=0.0),
+               stale_distance=rep.number("stale_distance", 1.0, positive=True),
                refit_every=comp.integer("refit_every", 100, min=1),
                refit_min_samples=comp.integer("min_samples", 60, min=1),
                gp_channels=tuple(comp.strings("channels", ("vx", "vy", "omega"))),

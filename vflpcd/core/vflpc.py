@@ -46,6 +46,7 @@ from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
 from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
+from vflpcd.core.guidance.splice import nearest_on_polyline
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.ports import ControllerBase, ControllerStatus
 
@@ -112,6 +113,7 @@ class VFLPCParams:
     end_margin: float
     velocity_change: float
     join_tolerance: float = 0.5
+    stale_distance: float = 1.0
     refit_every: int = 100
     refit_min_samples: int = 60
     R_rate: np.ndarray | None = None
@@ -298,24 +300,28 @@ class VFLPC(ControllerBase):
         return ReplanJob(self._s, pos, vel, heading, t, obstacles)
 
     def install_plan(self, job: ReplanJob, result: PlanResult) -> None:
-        """Take a finished replan (between two ticks); the next step uses it. A plan whose reference
-        at the last tick lies farther from the robot than ``join_tolerance`` and than the old
-        reference did (it arrived late, the robot did not drive as it assumed) is re-timed from the
-        robot's point and speed (``vflpcd.core.guidance.splice``); one that would then meet a moving
-        obstacle is stale, and a replan that ``plan_gate`` refuses is refused: both are failed
-        replans (the previous plan stays; a stale one is asked again from the present state)."""
+        """Take a finished replan (between two ticks); the next step uses it. A late one (the robot
+        did not drive as it assumed while the worker planned) is checked against the robot at the
+        last tick: farther than ``stale_distance`` from the robot, its path is stale; when its
+        reference lies farther from the robot than ``join_tolerance`` and than the old reference
+        does, it is re-timed from the robot's point and speed (``vflpcd.core.guidance.splice``), and
+        stale if it then meets a moving obstacle. A stale replan, or one that ``plan_gate`` refuses,
+        is a failed one (the previous plan stays; a stale one is asked again from the present state)."""
         plan = result.plan
         if self._plan is not None and self._t_last is not None:
             pos, vel = self._last_inputs[0], self._last_inputs[1]
+            off = nearest_on_polyline(plan.xy, pos)[2]
             t = np.array([self._t_last])
             d_new = float(np.linalg.norm(plan.trajectory.sample(t)["pos"][0] - pos))
             d_old = float(np.linalg.norm(self._plan.trajectory.sample(t)["pos"][0] - pos))
-            if d_new > max(self.params.join_tolerance, d_old):
+            if off <= self.params.stale_distance and d_new > max(self.params.join_tolerance, d_old):
                 plan = self.planner.splice(plan, pos, float(np.linalg.norm(vel)), self._t_last)
-                if plan is None:
-                    self.replan_failed(job, "stale: re-timed from the robot it meets a moving obstacle")
-                    self._pending = self._fresh_job(self._t_last)
-                    return
+            if off > self.params.stale_distance or plan is None:
+                why = (f"the robot is {off:.2f} m from its path" if off > self.params.stale_distance
+                       else "re-timed from the robot it meets a moving obstacle")
+                self.replan_failed(job, f"stale: {why}")
+                self._pending = self._fresh_job(self._t_last)
+                return
         if self.plan_gate is not None and self._plan is not None:
             refused = self.plan_gate(plan)
             if refused is not None:
