@@ -94,14 +94,16 @@ class Platform(Protocol):
 @dataclass(frozen=True)
 class ControllerStatus:
     """A controller's counters, one record (``Controller.status()``): guidance plans installed
-    (``replans``) and failed, GP refits installed, solver fallbacks, and the obstacles whose
-    barrier is on (``threats``, ids)."""
+    (``replans``) and failed, GP refits installed, solver fallbacks, the obstacles whose barrier is
+    on (``threats``, ids), and finished replans set aside as stale (``stale_replans``: planned from
+    where the robot no longer is)."""
 
     replans: int = 0
     replan_failures: int = 0
     refits: int = 0
     fallbacks: int = 0
     threats: tuple[str, ...] = ()
+    stale_replans: int = 0
 
 
 class WorkerJobs(Protocol):

@@ -228,6 +228,7 @@ class VFLPC(ControllerBase):
         self.fallbacks = 0
         self.replans = 0
         self.replan_failures = 0
+        self.stale_replans = 0
         self.last_info = None
         self.last_threats: tuple[str, ...] = ()
         self.refits = 0
@@ -281,7 +282,8 @@ class VFLPC(ControllerBase):
         return self._plan
 
     def status(self) -> ControllerStatus:
-        return ControllerStatus(self.replans, self.replan_failures, self.refits, self.fallbacks, self.last_threats)
+        return ControllerStatus(self.replans, self.replan_failures, self.refits, self.fallbacks, self.last_threats,
+                                self.stale_replans)
 
     # ------------------------------------------------------------------ worker jobs (WorkerJobs)
     def take_replan(self, force_at: float | None = None) -> ReplanJob | None:
@@ -305,8 +307,10 @@ class VFLPC(ControllerBase):
         last tick: farther than ``stale_distance`` from the robot, its path is stale; when its
         reference lies farther from the robot than ``join_tolerance`` and than the old reference
         does, it is re-timed from the robot's point and speed (``vflpcd.core.guidance.splice``), and
-        stale if it then meets a moving obstacle. A stale replan, or one that ``plan_gate`` refuses,
-        is a failed one (the previous plan stays; a stale one is asked again from the present state)."""
+        stale if it then meets a moving obstacle. A stale replan is set aside (counted in
+        ``stale_replans``, asked again at once from the present state; it is no planning failure:
+        the old plan stays, and where it ends the robot stops and the next plan is not stale); one
+        that ``plan_gate`` refuses is a failed replan (the previous plan stays)."""
         plan = result.plan
         if self._plan is not None and self._t_last is not None:
             pos, vel = self._last_inputs[0], self._last_inputs[1]
@@ -319,8 +323,11 @@ class VFLPC(ControllerBase):
             if off > self.params.stale_distance or plan is None:
                 why = (f"the robot is {off:.2f} m from its path" if off > self.params.stale_distance
                        else "re-timed from the robot it meets a moving obstacle")
-                self.replan_failed(job, f"stale: {why}")
-                self._pending = self._fresh_job(self._t_last)
+                self.stale_replans += 1
+                log.warning("event=replan_stale t=%.2f job_t=%.2f reason=%s", self._t_last, job.t, why)
+                self._pending = fresh = self._fresh_job(self._t_last)
+                if fresh is not None:
+                    self._asked = (fresh, {o.id: o.velocity for o in fresh.obstacles}, self.replan_failures)
                 return
         if self.plan_gate is not None and self._plan is not None:
             refused = self.plan_gate(plan)

@@ -214,7 +214,8 @@ class Daemon:
                   "overruns": c.overruns, "skipped": loop.rate.skipped,
                   "lateness_p99_ms": round(c.lateness.recent_percentile(99) * 1e3, 3),
                   "compute_p99_ms": round(c.compute.recent_percentile(99) * 1e3, 3),
-                  "replans": status.replans, "replan_failures": status.replan_failures, "refits": status.refits,
+                  "replans": status.replans, "replan_failures": status.replan_failures,
+                  "stale_replans": status.stale_replans, "refits": status.refits,
                   "worker_errors": c.worker_errors, "send_errors": c.send_errors, "fallbacks": status.fallbacks,
                   "progress_m": round(loop.progress.covered, 1) if loop.progress is not None else None,
                   "reason": loop.reason}
