@@ -40,7 +40,7 @@ log = logging.getLogger("vflpcd.daemon.workers")
 _PLANNER = None      # the guidance planner of this worker (set by the initializer)
 
 
-WORKER_NICE = 10     # workers yield the CPU to the control thread (CFS weight 110 against 1024)
+WORKER_NICE = 2      # workers yield to the control thread (CFS weight 655 against 1024), not to every process
 
 
 def _init_worker(planner, parent_pid: int | None = None) -> None:
