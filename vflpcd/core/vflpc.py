@@ -304,31 +304,31 @@ class VFLPC(ControllerBase):
     def install_plan(self, job: ReplanJob, result: PlanResult) -> None:
         """Take a finished replan (between two ticks); the next step uses it. A late one (the robot
         did not drive as it assumed while the worker planned) is checked against the robot at the
-        last tick: farther than ``stale_distance`` from the robot, its path is stale; when its
+        last tick: farther than ``stale_distance`` from the robot, its path is stale: set aside
+        (counted in ``stale_replans``, asked again at once from the present state; the old plan
+        stays, and where it ends the robot stops, from where the next plan is not stale). When its
         reference lies farther from the robot than ``join_tolerance`` and than the old reference
-        does, it is re-timed from the robot's point and speed (``vflpcd.core.guidance.splice``), and
-        stale if it then meets a moving obstacle. A stale replan is set aside (counted in
-        ``stale_replans``, asked again at once from the present state; it is no planning failure:
-        the old plan stays, and where it ends the robot stops and the next plan is not stale); one
-        that ``plan_gate`` refuses is a failed replan (the previous plan stays)."""
+        does, it is re-timed from the robot's point and speed (``vflpcd.core.guidance.splice``),
+        unless the re-timed plan would meet a moving obstacle: then it keeps the timing it was
+        planned with (clear of them). A replan that ``plan_gate`` refuses is a failed one (the
+        previous plan stays)."""
         plan = result.plan
         if self._plan is not None and self._t_last is not None:
             pos, vel = self._last_inputs[0], self._last_inputs[1]
             off = nearest_on_polyline(plan.xy, pos)[2]
-            t = np.array([self._t_last])
-            d_new = float(np.linalg.norm(plan.trajectory.sample(t)["pos"][0] - pos))
-            d_old = float(np.linalg.norm(self._plan.trajectory.sample(t)["pos"][0] - pos))
-            if off <= self.params.stale_distance and d_new > max(self.params.join_tolerance, d_old):
-                plan = self.planner.splice(plan, pos, float(np.linalg.norm(vel)), self._t_last)
-            if off > self.params.stale_distance or plan is None:
-                why = (f"the robot is {off:.2f} m from its path" if off > self.params.stale_distance
-                       else "re-timed from the robot it meets a moving obstacle")
+            if off > self.params.stale_distance:
                 self.stale_replans += 1
-                log.warning("event=replan_stale t=%.2f job_t=%.2f reason=%s", self._t_last, job.t, why)
+                log.warning("event=replan_stale t=%.2f job_t=%.2f reason=the robot is %.2f m from its path",
+                            self._t_last, job.t, off)
                 self._pending = fresh = self._fresh_job(self._t_last)
                 if fresh is not None:
                     self._asked = (fresh, {o.id: o.velocity for o in fresh.obstacles}, self.replan_failures)
                 return
+            t = np.array([self._t_last])
+            d_new = float(np.linalg.norm(plan.trajectory.sample(t)["pos"][0] - pos))
+            d_old = float(np.linalg.norm(self._plan.trajectory.sample(t)["pos"][0] - pos))
+            if d_new > max(self.params.join_tolerance, d_old):
+                plan = self.planner.splice(plan, pos, float(np.linalg.norm(vel)), self._t_last) or plan
         if self.plan_gate is not None and self._plan is not None:
             refused = self.plan_gate(plan)
             if refused is not None:

@@ -12,7 +12,7 @@ robot: from the path's first point at or after the robot's projection onto it (a
 step ahead), with the robot's speed as the speed plan's start (section III-A: the forward and
 backward passes again), passed at t_now. The path's points, and so its curvature, are the plan's
 own. A re-timed plan that would meet a moving obstacle's repulsive region at its new times is
-stale (``None``): the caller asks for a new one from the present state.
+``None``: the caller keeps the plan's own timing, which is clear of them.
 """
 
 from __future__ import annotations
@@ -51,9 +51,9 @@ def splice(plan, anchor: np.ndarray, v_anchor: float, t_now: float, dt: float, l
            moving_values=None):
     """``plan`` (a ``GuidancePlan``) re-timed to start at ``anchor`` (d,), the robot, at ``t_now`` at
     speed ``v_anchor`` (module docstring); ``moving_values(pos (M, d), t (M,))`` gives, for each
-    moving obstacle the plan was made around, (values, c): the plan is stale (None) when a re-timed
-    point has value <= c. A plan with fewer than three points ahead of the anchor is returned as
-    it is."""
+    moving obstacle the plan was made around, (values, c): None when a re-timed point has value
+    <= c (the re-timing would meet it). A plan with fewer than three points ahead of the anchor
+    is returned as it is."""
     xy = plan.xy
     k, _, _ = nearest_on_polyline(xy, np.asarray(anchor, float))
     pts = xy[k + 1:]

@@ -61,7 +61,7 @@ def test_a_splice_continues_a_moving_reference_at_its_speed(planner):
     assert spliced.kappa[2:] == pytest.approx(plan.kappa[-n:][2:], abs=1e-9)  # its curvature (ends aside)
 
 
-def test_a_splice_that_would_meet_a_moving_obstacle_is_stale(planner):
+def test_a_splice_that_would_meet_a_moving_obstacle_is_refused(planner):
     # a walker crossing at x = 40 is passed as planned; re-timed 4 s later the car would meet it
     walker = ObstacleState(id="walker", shape=Circle(0.4), center=np.array([40.0, -12.0]), yaw=0.0,
                            velocity=np.array([0.0, 1.5]), stamp=0.0)
