@@ -14,7 +14,9 @@ course angle of the horizontal velocity.
 
 Added for safety: the minimum clearance between the robot body and each obstacle's physical
 boundary, the number of collisions (contact episodes: the clearance to an obstacle going
-from >= 0 to < 0), the RMS lateral error and the peak lateral acceleration.
+from >= 0 to < 0), the RMS and peak lateral error and the peak lateral acceleration. Added for
+smoothness: the longitudinal jerk, d a_x / dt of the applied acceleration command (first
+differences over the control steps), its 99th percentile and maximum in absolute value.
 """
 
 from __future__ import annotations
@@ -112,10 +114,29 @@ def peak_lateral_acceleration(t: np.ndarray, velocity: np.ndarray, v_min: float 
     return float(np.nanmax(a)) if np.any(np.isfinite(a)) else float("nan")
 
 
+def jerk(t: np.ndarray, a_x: np.ndarray) -> np.ndarray:
+    """|d a_x / dt| between consecutive control steps (M - 1,): t (M,) s, a_x (M,) m/s^2."""
+    t, a_x = np.asarray(t, float), np.asarray(a_x, float)
+    dt = np.diff(t)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.abs(np.where(dt > 0.0, np.diff(a_x) / dt, np.nan))
+
+
+def jerk_stats(t: np.ndarray, a_x: np.ndarray) -> tuple[float, float]:
+    """(p99, max) of ``jerk`` in m/s^3; NaN for fewer than two steps."""
+    j = jerk(t, a_x)
+    j = j[np.isfinite(j)]
+    if j.size == 0:
+        return float("nan"), float("nan")
+    return float(np.percentile(j, 99)), float(np.max(j))
+
+
 def summarize(*, t, positions, velocity, psi, psi_r, e_lat, u_tilde, t_cal, clearance,
-              q1: float, q2: float, R: np.ndarray, t_com: float | None) -> dict:
-    """Every metric of a run as a flat dict of floats (see the module docstring)."""
+              q1: float, q2: float, R: np.ndarray, t_com: float | None, t_applied=None, a_x=None) -> dict:
+    """Every metric of a run as a flat dict of floats (see the module docstring); ``t_applied``,
+    ``a_x``: the steps whose command was applied and its longitudinal acceleration (for the jerk)."""
     jl, jh, jc = j_lat(e_lat, q1), j_heading(psi, psi_r, q2), j_con(u_tilde, R)
+    jerk_p99, jerk_max = jerk_stats(t_applied, a_x) if a_x is not None else (float("nan"), float("nan"))
     t_med, t_p99 = calc_time_stats(t_cal)
     clear = min_clearance(clearance)
     return {
@@ -125,5 +146,7 @@ def summarize(*, t, positions, velocity, psi, psi_r, e_lat, u_tilde, t_cal, clea
         "min_clearance": float(np.nanmin(clear)) if np.any(np.isfinite(clear)) else None,
         "min_clearance_per_obstacle": [None if np.isnan(c) else float(c) for c in clear],
         "collisions": collision_count(clearance), "rms_lateral_error": rms(e_lat),
+        "peak_lateral_error": float(np.max(np.abs(e_lat))) if len(e_lat) else float("nan"),
         "peak_lateral_acceleration": peak_lateral_acceleration(t, velocity),
+        "jerk_p99": jerk_p99, "jerk_max": jerk_max,
     }

@@ -32,8 +32,10 @@ def metrics_table(record: RunRecord, scenario: Scenario) -> str:
         ("min clearance", _fmt(m["min_clearance"], " m", digits=2)),
         ("collisions", str(m["collisions"]) + (f" (first at {m['impact_speed']:.2f} m/s)"
                                                if m["impact_speed"] is not None else "")),
-        ("RMS lateral error", _fmt(m["rms_lateral_error"], " m", digits=3)),
+        ("RMS / peak lateral error", f"{_fmt(m['rms_lateral_error'], digits=3)} / "
+                                     f"{_fmt(m['peak_lateral_error'], ' m', digits=3)}"),
         ("peak lateral acceleration", _fmt(m["peak_lateral_acceleration"], " m/s^2", digits=2)),
+        ("longitudinal jerk p99 / max", f"{_fmt(m['jerk_p99'], digits=3)} / {_fmt(m['jerk_max'], ' m/s^3', digits=3)}"),
     ]
     for o, c in zip(scenario.obstacles, m["min_clearance_per_obstacle"]):
         rows.append((f"  clearance to {o.id}", _fmt(c, " m", digits=2) if c is not None else "never present"))

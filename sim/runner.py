@@ -194,7 +194,8 @@ def evaluate(record: RunRecord, scenario: Scenario) -> dict:
         t=record.t, positions=record.position, velocity=record.velocity,
         psi=record.psi[ok], psi_r=record.ref_heading[ok], e_lat=record.lateral[ok],
         u_tilde=record.applied[ok], t_cal=record.t_cal, clearance=record.clearance,
-        q1=w.q1, q2=w.q2, R=w.R, t_com=record.t_com)
+        q1=w.q1, q2=w.q2, R=w.R, t_com=record.t_com, t_applied=record.t[ok],
+        a_x=record.applied[ok][:, record.control_names.index("a_x")] if "a_x" in record.control_names else None)
     metrics["t_background_max"] = float(np.max(record.t_background)) if len(record.t_background) else 0.0
     if metrics.get("collisions", 0) > 0:
         record.outcome = "collision"

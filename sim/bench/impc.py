@@ -73,7 +73,7 @@ def _fmt(v, scale: float = 1.0, digits: int = 3) -> str:
 def table(title: str, runs: list[Run]) -> str:
     head = (f"{'controller':<20} {'outcome':<10} {'J_MC':>7} {'L_p m':>7} {'t_com s':>8} {'t_cal med ms':>13} "
             f"{'p99 ms':>8} {'coll':>5} {'clear m':>8} {'a_lat max':>10} {'fallb':>6} {'bg max s':>9} {'interv':>6} "
-            f"{'sup med us':>10}")
+            f"{'sup med us':>10} {'RMS lat m':>9} {'peak lat':>8} {'jerk p99':>8} {'jerk max':>8}")
     lines = [title, head, "-" * len(head)]
     for r in runs:
         m = r.metrics
@@ -82,7 +82,8 @@ def table(title: str, runs: list[Run]) -> str:
                      f"{_fmt(m['t_cal_p99'], 1e3):>8} {m['collisions']:>5} {_fmt(m['min_clearance']):>8} "
                      f"{_fmt(m['peak_lateral_acceleration']):>10} {m.get('fallbacks', '-'):>6} "
                      f"{_fmt(m['t_background_max']):>9} {m['interventions']:>6} "
-                     f"{m['t_sup_median'] * 1e6:>10.0f}")
+                     f"{m['t_sup_median'] * 1e6:>10.0f} {_fmt(m['rms_lateral_error']):>9} "
+                     f"{_fmt(m['peak_lateral_error']):>8} {_fmt(m['jerk_p99']):>8} {_fmt(m['jerk_max']):>8}")
     return "\n".join(lines)
 
 

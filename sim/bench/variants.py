@@ -72,7 +72,8 @@ def run_variant(seed: int, folder: Path) -> dict:
             "speed_closest": float(np.linalg.norm(record.velocity[k])), "t_com": m["t_com"],
             "t_cal_median": m["t_cal_median"], "t_cal_p99": m["t_cal_p99"], "fallbacks": controller.fallbacks,
             "replan_failures": controller.replan_failures, "interventions": m["interventions"],
-            "failsafe": m["failsafe"]}
+            "failsafe": m["failsafe"], "peak_lateral_error": m["peak_lateral_error"],
+            "jerk_p99": m["jerk_p99"], "jerk_max": m["jerk_max"]}
 
 
 def bench_variants(out: Path, n: int = 50, first_seed: int = 0) -> dict:
@@ -82,13 +83,15 @@ def bench_variants(out: Path, n: int = 50, first_seed: int = 0) -> dict:
     logging.getLogger("vflpcd.core.vflpc").setLevel(logging.ERROR)  # replan failures are counted per run
     rows = []
     print(f"{'seed':>4} {'outcome':<10} {'coll':>4} {'clear m':>8} {'closest':<11} {'at t s':>7} {'speed':>6} "
-          f"{'t_cal med ms':>12} {'p99 ms':>7} {'replan fails':>12} {'interv':>6}")
+          f"{'t_cal med ms':>12} {'p99 ms':>7} {'replan fails':>12} {'interv':>6} {'peak lat':>8} "
+          f"{'jerk p99':>8} {'jerk max':>8}")
     for seed in range(first_seed, first_seed + n):
         r = run_variant(seed, folder)
         rows.append(r)
         print(f"{seed:>4} {r['outcome']:<10} {r['collisions']:>4} {r['min_clearance']:>8.2f} {r['closest']:<11} "
               f"{r['t_closest']:>7.2f} {r['speed_closest']:>6.2f} {r['t_cal_median'] * 1e3:>12.3f} "
-              f"{r['t_cal_p99'] * 1e3:>7.3f} {r['replan_failures']:>12} {r['interventions']:>6}"
+              f"{r['t_cal_p99'] * 1e3:>7.3f} {r['replan_failures']:>12} {r['interventions']:>6} "
+              f"{r['peak_lateral_error']:>8.2f} {r['jerk_p99']:>8.2f} {r['jerk_max']:>8.2f}"
               + (f"  {r['failsafe']}" if r["failsafe"] else ""), flush=True)
     safe = sum(r["collisions"] == 0 for r in rows)
     done = sum(r["outcome"] == "completed" for r in rows)

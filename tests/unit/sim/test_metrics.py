@@ -90,3 +90,23 @@ def test_summarize_collects_everything(trajectory):
     assert out["J_Con"] == pytest.approx(1.5)
     assert out["min_clearance"] == pytest.approx(0.5) and out["collisions"] == 0
     assert out["t_com"] == 3.0 and out["L_p"] == pytest.approx(3 * np.sqrt(2))
+
+
+def test_jerk_is_the_change_of_the_applied_acceleration_per_second():
+    t = np.array([0.0, 0.05, 0.10, 0.15, 0.30])                 # a skipped step counts over its real gap
+    a_x = np.array([0.0, 0.0, 1.0, 1.0, -2.0])
+    assert M.jerk(t, a_x) == pytest.approx([0.0, 20.0, 0.0, 20.0])
+    p99, peak = M.jerk_stats(t, a_x)
+    assert peak == 20.0 and p99 == pytest.approx(np.percentile([0.0, 20.0, 0.0, 20.0], 99))
+    assert all(np.isnan(M.jerk_stats(t[:1], a_x[:1])))
+
+
+def test_summary_carries_the_peak_lateral_error_and_the_jerk(trajectory):
+    X, Y, psi, u = trajectory
+    t = np.arange(4) * 0.1
+    e = M.lateral_error(X, Y, X, np.zeros(4), np.zeros(4))
+    m = M.summarize(t=t, positions=np.column_stack([X, Y]), velocity=np.column_stack([np.ones(4), np.zeros(4)]),
+                    psi=psi, psi_r=np.zeros(4), e_lat=e, u_tilde=u, t_cal=np.full(4, 1e-3),
+                    clearance=np.full((4, 1), 5.0), q1=1.0, q2=1.0, R=np.eye(2), t_com=0.3,
+                    t_applied=t, a_x=u[:, 0])
+    assert m["peak_lateral_error"] == 1.0 and m["jerk_max"] == pytest.approx(10.0)
