@@ -16,9 +16,9 @@ setup: $(BIN)/.installed
 demo: $(BIN)/.installed
 	$(BIN)/vflpcd run config/missions/vehicle_can.toml --with-sitl --log-dir results/demo --plot
 
-# four workers on two cores: most of the integration tests wait on real time (missions, SITL)
+# three workers on two cores: most of the integration tests wait on real time (missions, SITL)
 test: $(BIN)/.installed
-	$(BIN)/pytest -q -n 4 --dist worksteal
+	$(BIN)/pytest -q -n 3 --dist worksteal
 
 # the inner loop: the unit tests only (no real-time missions, SITL or benches)
 test-fast: $(BIN)/.installed
