@@ -90,7 +90,7 @@ def test_the_convex_step_is_the_exact_minimiser():
     n, b = half_planes(r, np.zeros(41), _values([o]))
     assert np.isfinite(b).sum() > 5
     eps = (SPACING / 4.0) ** 4
-    x = _solve_convex(r, eps, n, b, r, pin_end=True)
+    x, _ = _solve_convex(r, eps, n, b, r, pin_end=True)
     K = len(r)
     D = np.diff(np.eye(K), 2, axis=0)
     H = np.kron(D.T @ D + eps * np.eye(K), np.eye(2))
@@ -115,3 +115,15 @@ def test_the_convex_step_is_the_exact_minimiser():
     gap = np.where(np.isfinite(b), np.einsum("ij,ij->i", n, x) - b, 0.0)
     assert gap[2:-1].min() > -1e-5
     assert abs(J(x) - J(ref)) <= 1e-6 * max(J(ref), 1e-9) + 1e-9
+
+
+def test_a_warm_active_set_gives_the_same_minimiser():
+    """Started from a previous solve's active set (a superset here), the active set still ends at
+    the same minimiser (the problem is strictly convex): the warm start only saves rounds."""
+    o = _obstacle([5.0, -0.3])
+    r = np.column_stack([np.linspace(0, 10, 41), np.zeros(41)])
+    n, b = half_planes(r, np.zeros(41), _values([o]))
+    eps = (SPACING / 4.0) ** 4
+    cold, active = _solve_convex(r, eps, n, b, r, pin_end=True)
+    warm, _ = _solve_convex(r, eps, n, b, r, pin_end=True, active0=active | np.isfinite(b))
+    assert np.max(np.abs(warm - cold)) < 1e-6
