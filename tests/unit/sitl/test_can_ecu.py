@@ -63,7 +63,8 @@ def test_status_and_ins_at_their_cycle_times_match_the_plant(rig):
     by_id = {i: [f for f in frames if f.arbitration_id == i] for i in (0x200, 0x300, 0x301)}
     for frame_id, period in ((0x200, 0.020), (0x300, 0.010), (0x301, 0.010)):
         stamps = np.array([f.timestamp for f in by_id[frame_id]])
-        assert np.mean(np.diff(stamps)) == pytest.approx(period, rel=0.1), frame_id
+        # the median gap: a cycle the mock skips when its thread runs late (a loaded machine) moves the mean
+        assert np.median(np.diff(stamps)) == pytest.approx(period, rel=0.1), frame_id
     last = CODEC.decode(by_id[0x301][-1]).signals
     pos = CODEC.decode(by_id[0x300][-1]).signals
     x = ecu.plant.state                         # held at the start state until engaged
