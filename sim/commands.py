@@ -99,6 +99,15 @@ def cmd_bench_variants(args) -> int:
     return 0
 
 
+def cmd_bench_ml(args) -> int:
+    if args.seeds < 1 or args.laps < 2:
+        raise ConfigError("command line", "--seeds/--laps", "expected at least one seed and two laps (lap 2 is measured)")
+    from sim.bench.ml import bench_ml
+
+    bench_ml(args.out, args.seeds, args.laps)
+    return 0
+
+
 def cmd_bench_safety(args) -> int:
     from sim.bench.safety import CONTROLLERS, SCENES, bench_safety
 

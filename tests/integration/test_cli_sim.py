@@ -144,3 +144,25 @@ def test_bench_safety_refuses_an_unknown_scene_in_one_line(tmp_path):
     assert proc.stderr.strip().splitlines() == [
         "vflpcd: error: command line: --scene: no such scene 'nope' (have: wall_across, narrow_turn, "
         "pedestrian_close, tight_gap, dense_corridor)"]
+
+
+def test_bench_ml_runs_both_models_on_the_exact_vehicle_and_writes_json_and_png(tmp_path):
+    proc = subprocess.run(VFLPCD + ["bench", "ml", "--seeds", "1", "--out", str(tmp_path)], capture_output=True,
+                          text=True, timeout=300, env={**os.environ, "MPLBACKEND": "Agg"})
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((tmp_path / "bench_ml.json").read_text())
+    wo, w = doc["runs"]
+    assert (wo["label"], w["label"]) == ("w/o ML", "w/ ML") and doc["params"] == "exact" and doc["laps"] == 2
+    assert wo["refits"] == 0 and w["refits"] > 0                       # the GP learned during the run
+    assert all(r["outcome"] == "completed" and r["collisions"] == 0 and r["rms_lateral_lap2"] > 0 for r in (wo, w))
+    assert doc["rms_lap2_reduction"] == 1.0 - w["rms_lateral_lap2"] / wo["rms_lateral_lap2"]
+    assert "means over 1 seeds" in proc.stdout
+    assert (tmp_path / "bench_ml.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_bench_ml_refuses_a_single_lap_in_one_line(tmp_path):
+    proc = subprocess.run(VFLPCD + ["bench", "ml", "--laps", "1", "--out", str(tmp_path)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        "vflpcd: error: command line: --seeds/--laps: expected at least one seed and two laps (lap 2 is measured)"]

@@ -85,6 +85,13 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
     b.set_defaults(func=_simulator("cmd_bench_variants"))
 
+    b = bench.add_parser("ml", help="the paper's model-uncertainty test: racing_track on the exact vehicle with "
+                                    "process noise, VF-LPC w/o and w/ the online GP (lap-2 RMS lateral, J_MC, jerk)")
+    b.add_argument("--seeds", type=int, default=5, help="seeds of the process noise (default 5)")
+    b.add_argument("--laps", type=int, default=2, help="laps per run, at least 2 (default 2)")
+    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    b.set_defaults(func=_simulator("cmd_bench_ml"))
+
     b = bench.add_parser("safety", help="every controller behind the safety supervisor on scenes with no or only "
                                         "a tight safe path, with and without it (collisions, stops, impact speeds)")
     b.add_argument("--scene", action="append", default=None,
