@@ -35,7 +35,7 @@ import numpy as np
 from vflpcd.core.angles import wrap_angle
 from vflpcd.base.errors import ConfigError
 from vflpcd.base.paths import config_dir
-from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.base.tomlread import Table, load_table
 from vflpcd.training.datasets import Log, save_log
 
 log = logging.getLogger("sim.collect")
@@ -61,7 +61,7 @@ class CollectConfig:
     @classmethod
     def load(cls, path: str | Path | None = None) -> "CollectConfig":
         path = Path(path) if path is not None else config_dir() / "collect.toml"
-        root = Table(load_toml(path), path)
+        root = load_table(path)
         root.check_known({"common", *PLANTS})
         common = root.table("common")
         common.check_known({"dt", "log_seconds"})

@@ -21,6 +21,7 @@ import numpy as np
 from sim.runner import run_closed_loop
 from vflpcd.config.scenarios import load_scenario
 from vflpcd.controllers import make_controller
+from vflpcd.controllers.vflpc import limits_for
 
 CONTROLLERS = (("w/o ML", "vflpc"), ("w/ ML", "vflpc_ml"))
 
@@ -49,21 +50,13 @@ def run_one(scenario, name: str, label: str, seed: int) -> dict:
     a = record.control_names.index("a_x")
     applied = record.applied[:, a]
     fin = np.isfinite(applied)
-    lim = scenario_limits(scenario)
+    lim = limits_for(scenario, scenario.control_period)
     return {"label": label, "controller": name, "seed": seed, "outcome": m["outcome"],
             "rms_lateral_lap2": float(np.sqrt(np.mean(record.lateral[lap2][ok] ** 2))) if ok.any() else None,
             "J_MC": m["J_MC"], "J_Con": m["J_Con"], "jerk_p99": m["jerk_p99"], "jerk_max": m["jerk_max"],
             "refits": controller.status().refits, "collisions": m["collisions"],
-            "chatter_s": chatter_seconds(record.t[fin], applied[fin], *lim),
+            "chatter_s": chatter_seconds(record.t[fin], applied[fin], float(lim.u_min[a]), float(lim.u_max[a])),
             "t": record.t.tolist(), "lateral": record.lateral.tolist()}
-
-
-def scenario_limits(scenario) -> tuple[float, float]:
-    """The vehicle's a_x limits (m/s^2)."""
-    from vflpcd.config.vehicles import BicycleConfig
-
-    lim = BicycleConfig.load(scenario.params).limits
-    return float(lim.a_min), float(lim.a_max)
 
 
 def bench_ml(out: Path, seeds: int = 5, laps: int = 2) -> dict:

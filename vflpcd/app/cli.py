@@ -26,6 +26,12 @@ SITL_MOCKS = {"quad": "a PX4-like quadrotor autopilot over MAVLink/UDP",
               "can-ecu": "a drive-by-wire vehicle ECU on a CAN bus (config/can/vehicle.dbc)"}
 
 
+def _out(bench_parser: argparse.ArgumentParser) -> None:
+    """A bench's ``--out``: where its JSON and PNG go."""
+    bench_parser.add_argument("--out", type=Path, default=Path("results/bench"),
+                              help="output folder (default results/bench)")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="vflpcd", description="Vector Field-guided Learning Predictive Control")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -62,34 +68,34 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--astar-repeat", type=int, default=3, help="Hybrid A* runs (default 3)")
     b.add_argument("--safe-distance", type=float, default=0.0,
                    help="least body clearance that counts as a safe distance, m (default 0)")
-    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    _out(b)
     b.set_defaults(func=_simulator("cmd_bench_guidance"))
 
     b = bench.add_parser("dynamics", help="learned-model costs and online GP compensation on racing_track")
     b.add_argument("--model", type=Path, default=None,
                    help="vehicle model artifact (default config/models/dynamic_bicycle.npz)")
     b.add_argument("--seed", type=int, default=0, help="seed of the plant's process noise (default 0)")
-    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    _out(b)
     b.set_defaults(func=_simulator("cmd_bench_dynamics"))
 
     b = bench.add_parser("impc", help="VF-LPC against NMPC (MPC-CBF), Koopman-MPC and pure pursuit "
                                       "(the paper's IMPC table), w/ and w/o ML, and on uav_3d")
     b.add_argument("--scenario", default="carsim_avoidance", help="ground scenario (default carsim_avoidance)")
     b.add_argument("--aerial", default="uav_3d", help="aerial scenario of table 3 (default uav_3d)")
-    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    _out(b)
     b.set_defaults(func=_simulator("cmd_bench_impc"))
 
     b = bench.add_parser("variants", help="VF-LPC on seeded road variants with moving obstacles (collisions)")
     b.add_argument("--n", type=int, default=50, help="number of variants (default 50)")
     b.add_argument("--first-seed", type=int, default=0, help="seed of the first variant (default 0)")
-    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    _out(b)
     b.set_defaults(func=_simulator("cmd_bench_variants"))
 
     b = bench.add_parser("ml", help="the paper's model-uncertainty test: racing_track on the exact vehicle with "
                                     "process noise, VF-LPC w/o and w/ the online GP (lap-2 RMS lateral, J_MC, jerk)")
     b.add_argument("--seeds", type=int, default=5, help="seeds of the process noise (default 5)")
     b.add_argument("--laps", type=int, default=2, help="laps per run, at least 2 (default 2)")
-    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    _out(b)
     b.set_defaults(func=_simulator("cmd_bench_ml"))
 
     b = bench.add_parser("safety", help="every controller behind the safety supervisor on scenes with no or only "
@@ -98,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="a scene of config/scenarios/safety/ (repeatable; default all)")
     b.add_argument("--controller", action="append", default=None,
                    help="a controller (repeatable; default vflpc, nmpc_cbf, koopman_mpc, pure_pursuit)")
-    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    _out(b)
     b.set_defaults(func=_simulator("cmd_bench_safety"))
 
     p = sub.add_parser("run", help="run a mission: the daemon (fixed-rate VF-LPC loop, workers, telemetry, log)")
@@ -137,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
     b.add_argument("--executor", choices=("process", "thread"), default=None,
                    help="worker executor (default: the mission's)")
-    b.add_argument("--out", type=Path, default=Path("results/bench"), help="output folder (default results/bench)")
+    _out(b)
     b.set_defaults(func=cmd_bench_loop)
 
     p = sub.add_parser("sitl", help="software-in-the-loop mocks of the real platforms")

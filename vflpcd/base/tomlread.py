@@ -34,6 +34,11 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(path, "<syntax>", f"not valid TOML ({exc})") from None
 
 
+def load_table(path: str | Path) -> "Table":
+    """The root table of a TOML file (``load_toml``), its errors naming the file."""
+    return Table(load_toml(path), path)
+
+
 class Table:
     """A view of one TOML table that knows its file and its dotted field path."""
 

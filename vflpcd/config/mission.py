@@ -17,7 +17,7 @@ from vflpcd.daemon.telemetry import TelemetryConfig, check_vehicle_id
 from vflpcd.base.errors import ConfigError
 from vflpcd.base.paths import config_dir
 from vflpcd.config.safety import safety_settings
-from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.base.tomlread import Table, load_table
 
 PLATFORM_KINDS = {"inproc": ("ground", "aerial"), "mavlink": ("aerial",), "can": ("ground",)}
 
@@ -55,7 +55,7 @@ def load_mission(path: str | Path) -> Mission:
     from vflpcd.config.scenarios import load_scenario
 
     file = Path(path)
-    root = Table(load_toml(file), file)
+    root = load_table(file)
     root.check_known({"vehicle_id", "description", "platform", "route", "controller", "loop", "workers",
                       "telemetry", "failsafe", "safety", "log"})
     vehicle_id = root.string("vehicle_id")

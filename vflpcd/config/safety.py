@@ -13,7 +13,7 @@ from vflpcd.core.safety.monitors import MonitorConfig, PlanLimits
 from vflpcd.core.safety.supervisor import (AerialSupervisor, CarLimits, GroundSupervisor, QuadLimits,
                                            SupervisorConfig)
 from vflpcd.base.paths import config_dir
-from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.base.tomlread import Table, load_table
 
 _POSITIVE = {"margin", "release_margin", "decel_factor", "max_step_m", "plan_timeout", "tracking_bound",
              "route_bound", "response_window", "response_accel_tol", "response_yaw_min", "blocked_s", "hold_kp",
@@ -43,7 +43,7 @@ def safety_settings(platform: str, overrides: Table | None = None,
     """The supervisor and monitor settings of ``platform`` ("ground" | "aerial"); ``overrides``: a
     mission's [safety] table (any field of either). ConfigError naming the file and the field."""
     path = Path(path) if path is not None else config_dir() / "safety.toml"
-    root = Table(load_toml(path), path)
+    root = load_table(path)
     root.check_known({"ground", "aerial"})
     plat = root.table(platform)
     plat.check_known({"supervisor", "monitors"})

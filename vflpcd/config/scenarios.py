@@ -22,7 +22,7 @@ from vflpcd.core.path import ReferencePath
 from vflpcd.core.shapes import SHAPES_2D, SHAPES_3D, shape_from_table
 from vflpcd.base.errors import ConfigError
 from vflpcd.base.paths import config_dir
-from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.base.tomlread import Table, load_table
 
 PLATFORMS = {"ground": ("dynamic_bicycle", 2, 2), "aerial": ("quadrotor", 3, 3)}  # plant, dim, n_u
 TRIGGERS = ("always", "move", "appear")
@@ -98,7 +98,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     file = scenario_file(name_or_path)
     if not file.exists():
         raise ConfigError(file, "<file>", f"no such scenario (available: {', '.join(available_scenarios())})")
-    root = Table(load_toml(file), file)
+    root = load_table(file)
     root.check_known({"name", "description", "platform", "control_period", "t_max",
                       "vehicle", "path", "start", "speed", "goal", "metrics", "obstacles", "guidance"})
     platform = root.string("platform", choices=tuple(PLATFORMS))
@@ -162,7 +162,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
 def default_guidance() -> GuidanceParams:
     """The guidance parameters of ``config/guidance.toml``."""
     path = config_dir() / "guidance.toml"
-    return guidance_params(Table(load_toml(path), path))
+    return guidance_params(load_table(path))
 
 
 def _bicycle_config(params: str, veh: Table) -> BicycleConfig:

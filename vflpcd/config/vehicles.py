@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from vflpcd.base.paths import config_dir
-from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.base.tomlread import load_table
 
 STATE_NAMES = ("X", "Y", "psi", "vx", "vy", "omega")      # the car: CoG position, yaw, body velocities, yaw rate
 CONTROL_NAMES = ("a_x", "delta_f")
@@ -71,7 +71,7 @@ class BicycleConfig:
     def load(cls, param_set: str = "nominal", path: str | Path | None = None) -> "BicycleConfig":
         """Read parameter set ``param_set`` (e.g. "nominal", "exact") and the shared limits."""
         path = Path(path) if path is not None else config_dir() / "plants" / "dynamic_bicycle.toml"
-        root = Table(load_toml(path), path)
+        root = load_table(path)
         root.check_known({"params", "limits", "low_speed", "integration", "body"})
         sets = root.table("params")
         if not sets.has(param_set):
@@ -150,7 +150,7 @@ class QuadrotorParams:
         Raises ConfigError naming the file and the field on a missing, unknown or bad value.
         """
         path = Path(path) if path is not None else config_dir() / "plants" / "quadrotor.toml"
-        root = Table(load_toml(path), path)
+        root = load_table(path)
         root.check_known({_TABLE})
         t = root.table(_TABLE)
         t.check_known(_FIELDS)

@@ -82,7 +82,7 @@ from scipy.sparse.csgraph import dijkstra
 from vflpcd.core.footprint import Footprint
 from vflpcd.core.angles import wrap_angle
 from vflpcd.base.paths import config_dir
-from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.base.tomlread import load_table
 
 __all__ = [
     "HybridAStarParams", "HybridAStarResult", "DubinsPath", "dubins_paths", "dubins_shortest",
@@ -121,7 +121,7 @@ class HybridAStarParams:
     def load(cls, path: str | Path | None = None) -> "HybridAStarParams":
         """Read and validate the parameter file; any bad value raises ConfigError naming the field."""
         path = Path(path) if path is not None else config_dir() / "planners" / "hybrid_astar.toml"
-        root = Table(load_toml(path), path)
+        root = load_table(path)
         root.check_known({"grid", "motion", "cost", "search", "collision", "goal", "output", "scenario"})
         grid, motion, cost = root.table("grid"), root.table("motion"), root.table("cost")
         search, coll, goal = root.table("search"), root.table("collision"), root.table("goal")

@@ -110,7 +110,7 @@ from vflpcd.core.shapes import Circle
 from vflpcd.core.ports import ControllerBase
 from vflpcd.base.errors import ConfigError
 from vflpcd.base.paths import config_dir
-from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.base.tomlread import load_table
 
 log = logging.getLogger(__name__)
 
@@ -148,7 +148,7 @@ class NmpcCbfConfig:
         path = Path(path) if path is not None else config_dir() / "controllers" / "nmpc_cbf.toml"
         shared = Path(shared) if shared is not None else config_dir() / "controllers" / "vflpc.toml"
 
-        sroot = Table(load_toml(shared), shared)  # other controllers own this file: read, no check_known
+        sroot = load_table(shared)  # other controllers own this file: read, no check_known
         cost, hor = sroot.table("cost"), sroot.table("horizon")
         q, r = cost.vector("q_ground", 6), cost.vector("r_ground", 2)
         if np.any(q < 0.0):
@@ -158,7 +158,7 @@ class NmpcCbfConfig:
         gamma = cost.number("gamma", positive=True, max=1.0)
         shared_seconds = hor.number("seconds", positive=True)
 
-        root = Table(load_toml(path), path)
+        root = load_table(path)
         root.check_known({"model_params", "v_min", "substeps", "horizon_seconds", "terminal_factor",
                           "steering_rate_weight", "cbf", "ipopt"})
         horizon = root.number("horizon_seconds", shared_seconds, positive=True)

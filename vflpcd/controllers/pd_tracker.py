@@ -19,7 +19,7 @@ from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
 from vflpcd.core.ports import ControllerBase
 from vflpcd.base.paths import config_dir
-from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.base.tomlread import load_table
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,7 @@ class PDGains:
     @classmethod
     def load(cls, path: str | Path | None = None) -> "PDGains":
         path = Path(path) if path is not None else config_dir() / "controllers" / "pd_tracker.toml"
-        root = Table(load_toml(path), path)
+        root = load_table(path)
         root.check_known({"kp", "kd", "accel_max", "brake"})
         return cls(**{k: root.number(k, positive=True) for k in ("kp", "kd", "accel_max", "brake")})
 

@@ -22,7 +22,7 @@ from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
 from vflpcd.core.ports import ControllerBase
 from vflpcd.base.paths import config_dir
-from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.base.tomlread import load_table
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,7 @@ class PurePursuitGains:
     @classmethod
     def load(cls, path: str | Path | None = None) -> "PurePursuitGains":
         path = Path(path) if path is not None else config_dir() / "controllers" / "pure_pursuit.toml"
-        root = Table(load_toml(path), path)
+        root = load_table(path)
         root.check_known({"lookahead", "speed", "pid"})
         la, spd, pid = root.table("lookahead"), root.table("speed"), root.table("pid")
         la.check_known({"time", "min", "max"})

@@ -15,7 +15,7 @@ from vflpcd.core.guidance.planner3d import GuidancePlanner3D
 from vflpcd.config.params import vflpc_params
 from vflpcd.core.vflpc import VFLPC, VFLPCParams
 from vflpcd.base.paths import config_dir
-from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.base.tomlread import load_table
 from vflpcd.config.vehicles import state_names
 
 MODELS = {"ground": "dynamic_bicycle.npz", "aerial": "quadrotor.npz"}
@@ -23,7 +23,7 @@ MODELS = {"ground": "dynamic_bicycle.npz", "aerial": "quadrotor.npz"}
 
 def load_params(platform: str, path: str | Path | None = None) -> VFLPCParams:
     path = Path(path) if path is not None else config_dir() / "controllers" / "vflpc.toml"
-    return vflpc_params(Table(load_toml(path), path), platform)
+    return vflpc_params(load_table(path), platform)
 
 
 def limits_for(scenario, dt: float) -> Limits:

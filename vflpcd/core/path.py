@@ -212,4 +212,19 @@ def progress_delta(path: ReferencePath, s_new: float, s_old: float) -> float:
     return d
 
 
-__all__ = ["Projection", "ReferencePath", "progress_delta", "wrap_angle"]
+__all__ = ["Projection", "ReferencePath", "nearest_on_polyline", "progress_delta", "wrap_angle"]
+
+
+def nearest_on_polyline(p: np.ndarray, xy: np.ndarray) -> tuple[float, int]:
+    """Distance (m) from point p (d,) to the polyline through xy (K, d), and the index of the
+    segment's first vertex that is nearest."""
+    xy = np.asarray(xy, float)
+    if len(xy) == 1:
+        return float(np.linalg.norm(p - xy[0])), 0
+    a, ab = xy[:-1], np.diff(xy, axis=0)
+    w = np.einsum("kd,kd->k", ab, ab)
+    h = np.clip(np.einsum("kd,kd->k", p - a, ab) / np.maximum(w, 1e-12), 0.0, 1.0)
+    e = a + h[:, None] * ab - p
+    d2 = (e * e).sum(axis=1)
+    i = int(np.argmin(d2))
+    return float(np.sqrt(d2[i])), i

@@ -6,7 +6,7 @@ Every ``step(state, t, obstacles)``:
    reference at once when none exists; a replan that is due (fewer than N dt + end_margin seconds
    of reference left, or the obstacle picture changed: an obstacle appeared, went or changed
    velocity) is handed out as a worker job (below), planned from the robot's state; a plan that
-   arrives late is re-timed from the robot (``vflpcd.core.guidance.splice``); a failed replan keeps
+   arrives late is re-timed from the robot (``GuidancePlanner.splice``); a failed replan keeps
    the previous reference and is counted;
 3. builds the horizon problem in the lifted error space (``error_model``), with the GP
    correction when an online compensator has a model;
@@ -46,8 +46,8 @@ from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
 from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
-from vflpcd.core.guidance.splice import nearest_on_polyline
 from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.path import nearest_on_polyline
 from vflpcd.core.ports import ControllerBase, ControllerStatus
 
 log = logging.getLogger("vflpcd.core.vflpc")
@@ -125,6 +125,11 @@ class VFLPCParams:
     gp_m_max: int = 48
     gp_n_max: int = 400
 
+
+
+def _velocities(obstacles: Sequence[ObstacleState]) -> dict[str, np.ndarray]:
+    """The obstacle picture a replan is made for: each obstacle's velocity by id."""
+    return {o.id: o.velocity for o in obstacles}
 
 
 class HorizonSolver(Protocol):
@@ -302,43 +307,50 @@ class VFLPC(ControllerBase):
         return ReplanJob(self._s, pos, vel, heading, t, obstacles)
 
     def install_plan(self, job: ReplanJob, result: PlanResult) -> None:
-        """Take a finished replan (between two ticks); the next step uses it. A late one (the robot
-        did not drive as it assumed while the worker planned) is checked against the robot at the
-        last tick: farther than ``stale_distance`` from the robot, its path is stale: set aside
-        (counted in ``stale_replans``, asked again at once from the present state; the old plan
-        stays, and where it ends the robot stops, from where the next plan is not stale). When its
-        reference lies farther from the robot than ``join_tolerance`` and than the old reference
-        does, it is re-timed from the robot's point and speed (``vflpcd.core.guidance.splice``),
-        unless the re-timed plan would meet a moving obstacle: then it keeps the timing it was
-        planned with (clear of them). A replan that ``plan_gate`` refuses is a failed one (the
-        previous plan stays)."""
-        plan = result.plan
-        if self._plan is not None and self._t_last is not None:
-            pos, vel = self._last_inputs[0], self._last_inputs[1]
-            off = nearest_on_polyline(plan.xy, pos)[2]
-            if off > self.params.stale_distance:
-                self.stale_replans += 1
-                log.warning("event=replan_stale t=%.2f job_t=%.2f reason=the robot is %.2f m from its path",
-                            self._t_last, job.t, off)
-                self._pending = fresh = self._fresh_job(self._t_last)
-                if fresh is not None:
-                    self._asked = (fresh, {o.id: o.velocity for o in fresh.obstacles}, self.replan_failures)
-                return
-            t = np.array([self._t_last])
-            d_new = float(np.linalg.norm(plan.trajectory.sample(t)["pos"][0] - pos))
-            d_old = float(np.linalg.norm(self._plan.trajectory.sample(t)["pos"][0] - pos))
-            if d_new > max(self.params.join_tolerance, d_old):
-                plan = self.planner.splice(plan, pos, float(np.linalg.norm(vel)), self._t_last) or plan
+        """Take a finished replan (between two ticks); the next step uses it, joined to the robot
+        (``_joined``). A stale replan is set aside (counted in ``stale_replans`` and asked again at
+        once from the present state; no planning failure: the old plan stays, and where it ends the
+        robot stops, from where the next plan is not stale); a replan that ``plan_gate`` refuses is a
+        failed one (the previous plan stays)."""
+        plan = self._joined(job, result.plan)
+        if plan is None:
+            self.stale_replans += 1
+            fresh = self._fresh_job(self._t_last)
+            if fresh is not None:
+                self._ask(fresh)
+            return
         if self.plan_gate is not None and self._plan is not None:
             refused = self.plan_gate(plan)
             if refused is not None:
                 self.replan_failed(job, f"refused: {refused}")
                 return
         self._plan, self._ends_path = plan, result.ends_path
-        self._signature = {o.id: o.velocity for o in job.obstacles}
+        self._signature = _velocities(job.obstacles)
         if self._asked is not None and self._asked[0] is job:
             self._asked = None              # the newest picture asked for is the one now planned
         self.replans += 1
+
+    def _joined(self, job: ReplanJob, plan):
+        """A finished plan checked against the robot at the last tick, for one that arrives late
+        (the robot did not drive as it assumed while the worker planned): None (stale) when its
+        path lies farther than ``stale_distance`` from the robot; re-timed from the robot
+        (``GuidancePlanner.splice``) when its reference lies farther from the robot than
+        ``join_tolerance`` and than the old reference does, unless the re-timed plan would meet a
+        moving obstacle (then it keeps the timing it was planned with, clear of them)."""
+        if self._plan is None or self._t_last is None:
+            return plan
+        pos, vel = self._last_inputs[0], self._last_inputs[1]
+        off = nearest_on_polyline(pos, plan.xy)[0]
+        if off > self.params.stale_distance:
+            log.warning("event=replan_stale t=%.2f job_t=%.2f reason=the robot is %.2f m from its path",
+                        self._t_last, job.t, off)
+            return None
+        t = np.array([self._t_last])
+        d_new = float(np.linalg.norm(plan.trajectory.sample(t)["pos"][0] - pos))
+        d_old = float(np.linalg.norm(self._plan.trajectory.sample(t)["pos"][0] - pos))
+        if d_new > max(self.params.join_tolerance, d_old):
+            return self.planner.splice(plan, pos, float(np.linalg.norm(vel)), self._t_last) or plan
+        return plan
 
     def replan_failed(self, job: ReplanJob, reason: str) -> None:
         """A replan found no plan: the previous reference stays; counted and logged."""
@@ -396,7 +408,7 @@ class VFLPC(ControllerBase):
         ref = self._signature
         if self._asked is not None and self._asked[2] == self.replan_failures:
             ref = self._asked[1]
-        sig = {o.id: o.velocity for o in obstacles}
+        sig = _velocities(obstacles)
         if sig.keys() != ref.keys():
             return True
         return any(np.linalg.norm(sig[k] - ref[k]) > self.params.velocity_change for k in sig)
@@ -415,8 +427,13 @@ class VFLPC(ControllerBase):
         if plan is None:
             self.install_plan(job, plan_job(self.planner, job))   # no reference yet: plan at once
         else:
-            self._pending = job                                    # the newest replaces any older one
-            self._asked = (job, {o.id: o.velocity for o in obstacles}, self.replan_failures)
+            self._ask(job)
+
+    def _ask(self, job: ReplanJob) -> None:
+        """Hand ``job`` out at the next ``take_replan`` (the newest replaces any older one) and
+        remember the obstacle picture it was asked for (``_changed``)."""
+        self._pending = job
+        self._asked = (job, _velocities(job.obstacles), self.replan_failures)
 
     def _reference(self, t: float) -> np.ndarray:
         """World reference states (N + 1, n_x) at t + tau dt, in the model's state order."""

@@ -25,9 +25,9 @@ def aio():
     thread.close()
 
 
-def make_loop(aio, clock, platform, controller, *, policy=FailsafePolicy(), **kw):
+def make_loop(aio, clock, platform, controller, *, policy=FailsafePolicy(), workers_cfg=WorkerConfig(), **kw):
     events = []
-    loop = ControlLoop(platform, controller, LoopConfig(rate_hz=RATE_HZ, manual_gc=False), WorkerConfig(),
+    loop = ControlLoop(platform, controller, LoopConfig(rate_hz=RATE_HZ, manual_gc=False), workers_cfg,
                        policy, aio.loop, sinks=Sinks(on_event=events.append), clock=clock, sleep=clock.sleep, **kw)
     loop.t0_ns = loop.rate.start()
     return loop, events
@@ -168,9 +168,8 @@ def test_worker_jobs_are_submitted_when_due_and_their_results_installed_between_
     cart, ctl = Cart(clock), Scripted(clock)
     ctl.jobs = jobs = Jobs()
     workers = FakeWorkers()
-    loop, events = make_loop(aio, clock, cart, ctl, workers=workers)
-    loop.wcfg = WorkerConfig(replan_period=0.1, refit_period=0.2)
-    loop._next_refresh, loop._next_refit = 0.1, 0.2
+    loop, events = make_loop(aio, clock, cart, ctl, workers=workers,
+                             workers_cfg=WorkerConfig(replan_period=0.1, refit_period=0.2))
     run(loop, aio, 6)                                     # t = 0 .. 0.1: one forced replan at 0.1
     assert workers.submitted == [("replan", ("plan", pytest.approx(0.1)))]
     workers.done.append(Finished("replan", ("plan", 0.1), "the plan", None, 0.05))

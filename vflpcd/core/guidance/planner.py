@@ -35,10 +35,9 @@ from vflpcd.core.guidance.grid import FieldGrid, Integration, integrate
 from vflpcd.core.guidance.implicit import E, GraphPath, GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.params import GuidanceParams
 from vflpcd.core.guidance.speed import plan_speed, smooth_path, step_times
-from vflpcd.core.guidance.splice import SpeedLimits, splice
 from vflpcd.core.guidance.trajectory import Trajectory, timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
-from vflpcd.core.path import ReferencePath
+from vflpcd.core.path import ReferencePath, nearest_on_polyline
 
 VIRTUAL_LEAD = np.radians(30.0)  # heading change the virtual obstacle gives before R_actl
 MOVER_PASSES = 3  # re-integrations with moving obstacles placed at the previous pass's arrival times
@@ -140,29 +139,44 @@ class PlannerBase:
 
     @staticmethod
     def _values(o: ObstacleImplicit, xy: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """varphi at points xy (K, d) reached at times t (K,): a centre moving at constant velocity
-        gives varphi(p, t) = varphi(p - v (t - stamp), stamp)."""
+        """varphi at points xy (K, d) reached at times t (K,) (one evaluation for a static obstacle)."""
         if not np.any(o.velocity):
             return o.value(xy)
-        return o.value(xy - (np.asarray(t)[:, None] - o.stamp) * o.velocity, o.stamp)
+        return o.value(_at_stamp(o, xy, t), o.stamp)
 
-    def splice(self, plan: GuidancePlan, anchor: np.ndarray, v_anchor: float, t_now: float) -> GuidancePlan | None:
-        """``plan`` re-timed to start at the robot, ``anchor`` (d,), at ``t_now`` at speed ``v_anchor``
-        (``vflpcd.core.guidance.splice``); None when it would then meet a moving obstacle it was
-        planned around."""
-        p, movers = self.params, plan.field.movers
+    def splice(self, plan: GuidancePlan, robot: np.ndarray, v_robot: float, t_now: float) -> GuidancePlan | None:
+        """A late replan re-timed as if planned now from the robot (``robot`` (d,) at ``t_now`` at
+        speed ``v_robot``): a replan is planned from the robot's state when it was asked for, and
+        when the robot did not drive as it assumed while the worker planned (it stopped at the end
+        of its old plan, was braked), the plan's reference at the installation lies far ahead of it.
+        The path is kept from its first point at or after the robot's projection (at most one path
+        step ahead), so its points and curvature are the plan's own; the speed plan starts again
+        from v_robot. None when the re-timed plan would meet a moving obstacle's repulsive region (when
+        overtaking, arriving later means merging back closer to the car overtaken). A plan with
+        fewer than three points ahead of the robot is returned as it is."""
+        p = self.params
+        k = nearest_on_polyline(np.asarray(robot, float), plan.xy)[1]
+        pts = plan.xy[k + 1:]
+        if len(pts) < 3:
+            return plan
+        s, kappa, v = plan_speed(pts, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, max(float(v_robot), 0.0),
+                                 v_end=0.0 if plan.v[-1] <= 1e-9 else None)
+        trajectory = timed_trajectory(pts, s, v, t_now, self.dt)
+        for m in plan.field.movers:
+            if np.any(self._values(m.implicit, trajectory.pos, trajectory.t) <= m.implicit.c):
+                return None
+        return replace(plan, trajectory=trajectory, xy=pts, s=s, kappa=kappa, v=v)
 
-        def moving_values(pos, t):
-            return [(self._values(m.implicit, pos, t), m.implicit.c) for m in movers]
-        return splice(plan, anchor, v_anchor, t_now, self.dt,
-                      SpeedLimits(self.v_desired, self.a_lat_max, p.a_accel, p.a_decel),
-                      moving_values if movers else None)
+
+def _at_stamp(o: ObstacleImplicit, pts: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Points (K, d) reached at times t (K,) moved into the frame of the obstacle at its stamp: a
+    centre moving at constant velocity gives varphi(p, t) = varphi(p - v (t - stamp), stamp)."""
+    return pts - (np.asarray(t)[:, None] - o.stamp) * o.velocity
 
 
 def _value_grad_at_times(o: ObstacleImplicit, pts: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """varphi and its gradient at points (K, d) reached at times (K,): a centre moving at constant
-    velocity gives varphi(p, t) = varphi(p - v (t - stamp), stamp)."""
-    return o.value_grad(pts - (t[:, None] - o.stamp) * o.velocity, o.stamp)
+    """varphi and its gradient at points (K, d) reached at times (K,) (``_at_stamp``)."""
+    return o.value_grad(_at_stamp(o, pts, t), o.stamp)
 
 
 class GuidancePlanner(PlannerBase):

@@ -39,12 +39,9 @@ class Trajectory:
         """Linear interpolation of every series at times t (scalar or (K,)), clamped to the ends;
         after the end the reference stands at its last point: speed, yaw rate and acceleration 0."""
         t = np.asarray(t, float)
-        out = {name: np.interp(t, self.t, getattr(self, name)) for name in ("psi", "v", "omega", "accel", "kappa", "s")}
+        out = {name: np.interp(t, self.t, getattr(self, name)) for name in ("psi", "kappa", "s")}
+        out.update({name: np.interp(t, self.t, getattr(self, name), right=0.0) for name in ("v", "omega", "accel")})
         out["pos"] = np.stack([np.interp(t, self.t, self.pos[:, j]) for j in range(self.pos.shape[1])], axis=-1)
-        after = t > self.t[-1]
-        if np.any(after):
-            for name in ("v", "omega", "accel"):
-                out[name] = np.where(after, 0.0, out[name])
         return out
 
 

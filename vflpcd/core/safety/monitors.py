@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vflpcd.core.path import nearest_on_polyline
+
 REASONS = ("undrivable_plan", "no_plan", "tracking_error", "unresponsive", "blocked")
 
 
@@ -77,21 +79,6 @@ def check_plan(kappa: np.ndarray, v: np.ndarray, limits: PlanLimits, tolerance: 
         return (f"undrivable_plan: {v[j]:.2f} m/s on curvature {k[j]:.3f} 1/m needs lateral acceleration "
                 f"{a[j]:.2f} m/s^2 (limit {limits.a_lat_max:g})")
     return None
-
-
-def nearest_on_polyline(p: np.ndarray, xy: np.ndarray) -> tuple[float, int]:
-    """Distance (m) from point p (d,) to the polyline through xy (K, d), and the index of the
-    segment's first vertex that is nearest."""
-    xy = np.asarray(xy, float)
-    if len(xy) == 1:
-        return float(np.linalg.norm(p - xy[0])), 0
-    a, ab = xy[:-1], np.diff(xy, axis=0)
-    w = np.einsum("kd,kd->k", ab, ab)
-    h = np.clip(np.einsum("kd,kd->k", p - a, ab) / np.maximum(w, 1e-12), 0.0, 1.0)
-    e = a + h[:, None] * ab - p
-    d2 = (e * e).sum(axis=1)
-    i = int(np.argmin(d2))
-    return float(np.sqrt(d2[i])), i
 
 
 class PlanWatch:

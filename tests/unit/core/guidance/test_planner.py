@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from vflpcd.config.scenarios import load_scenario
+from vflpcd.config.scenarios import default_guidance, load_scenario
 from vflpcd.core.guidance.grid import FieldGrid, integrate
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.config.params import guidance_params
@@ -15,12 +15,12 @@ from vflpcd.core.path import ReferencePath
 from vflpcd.core.shapes import Box, Circle, Ellipse
 from vflpcd.base.errors import ConfigError
 from vflpcd.base.paths import config_dir
-from vflpcd.base.tomlread import Table, load_toml
+from vflpcd.base.tomlread import Table
 
 
 @pytest.fixture(scope="module")
 def params():
-    return guidance_params(Table(load_toml(config_dir() / "guidance.toml"), "guidance.toml"))
+    return default_guidance()
 
 
 def static(oid, shape, x, y, yaw=0.0):

@@ -3,16 +3,11 @@ robot's point and speed instead of chasing a reference far ahead of it."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
-from vflpcd.base.paths import config_dir
-from vflpcd.base.tomlread import Table, load_toml
-from vflpcd.config.params import guidance_params
+from vflpcd.config.scenarios import default_guidance
 from vflpcd.core.guidance.planner import GuidancePlanner
-from vflpcd.core.guidance.splice import nearest_on_polyline
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
 from vflpcd.core.shapes import Circle
@@ -20,20 +15,13 @@ from vflpcd.core.shapes import Circle
 
 @pytest.fixture(scope="module")
 def planner():
-    params = guidance_params(Table(load_toml(config_dir() / "guidance.toml"), "guidance.toml"))
-    return GuidancePlanner(ReferencePath.line([0.0, 0.0], [120.0, 0.0]), params, 6.0, 3.0, body_radius=1.0,
+    return GuidancePlanner(ReferencePath.line([0.0, 0.0], [120.0, 0.0]), default_guidance(), 6.0, 3.0, body_radius=1.0,
                            control_period=0.05)
 
 
 def plan_from(planner, pos, t0, v0, movers=()):
     prepared = planner.prepare(float(pos[0]), [])
     return planner.plan(prepared, np.asarray(pos, float), t0, v0, list(movers), heading=0.0)
-
-
-def test_nearest_point_on_a_polyline():
-    xy = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0]])
-    assert nearest_on_polyline(xy, np.array([1.5, -1.0])) == pytest.approx((0, 0.75, 1.0))
-    assert nearest_on_polyline(xy, np.array([3.0, 1.0])) == pytest.approx((1, 0.5, 1.0))
 
 
 def test_a_plan_installed_ten_seconds_late_continues_from_the_stopped_reference(planner):

@@ -7,7 +7,6 @@ import numpy as np
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.ports import ControllerBase, PlanningController
 from vflpcd.core.safety.guard import SafetyGuard
-from vflpcd.core.safety.monitors import MonitorConfig, PlanLimits
 from vflpcd.core.shapes import Box, Circle
 from vflpcd.config.safety import guard_for, safety_settings
 

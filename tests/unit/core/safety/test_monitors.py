@@ -5,8 +5,9 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from vflpcd.core.path import nearest_on_polyline
 from vflpcd.core.safety.monitors import (MonitorConfig, PlanLimits, PlanWatch, ResponseWatch, TrackingWatch,
-                                         check_plan, nearest_on_polyline)
+                                         check_plan)
 
 LIMITS = PlanLimits(kappa_max=0.174, a_lat_max=3.0)
 CFG = MonitorConfig()
