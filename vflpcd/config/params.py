@@ -48,20 +48,25 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
     cost, hor, sol = root.table("cost"), root.table("horizon"), root.table("solver")
     feat, bar, rep = root.table("features"), root.table("barrier"), root.table("replan")
     cost.check_known({"q_ground", "r_ground", "r_rate_ground", "q_aerial", "r_aerial", "r_rate_aerial", "q_lift",
-                      "gamma"})
+                      "gamma", "r_rate_threat_ground", "r_rate_threat_aerial"})
     hor.check_known({"seconds"})
     sol.check_known({"i_max", "tol", "eta_a", "divergence"})
     feat.check_known({"error_std_ground", "error_std_aerial", "samples", "size", "nu", "ell_factor", "seed"})
     bar.check_known({"mu", "length", "l_safe", "max_threats"})
     rep.check_known({"end_margin", "velocity_change", "join_tolerance", "stale_distance"})
     comp = root.table("compensation", {})
-    comp.check_known({"refit_every", "min_samples", "channels", "ell", "sf2", "sn2", "nu", "m_max", "n_max"})
+    comp.check_known({"refit_every", "min_samples", "channels", "ell", "sf2", "sn2", "nu", "m_max", "n_max",
+                      "linearisation"})
     q, r = cost.vector(f"q_{platform}"), cost.vector(f"r_{platform}")
     if np.any(q < 0) or np.any(r <= 0):
         raise cost.error(f"q_{platform}", "state weights must be >= 0 and control weights > 0")
     r_rate = cost.vector(f"r_rate_{platform}", len(r)) if cost.has(f"r_rate_{platform}") else None
     if r_rate is not None and np.any(r_rate <= 0):
         raise cost.error(f"r_rate_{platform}", "increment weights must be > 0")
+    key = f"r_rate_threat_{platform}"
+    r_threat = cost.vector(key, len(r)) if cost.has(key) else None
+    if r_threat is not None and (r_rate is None or np.any(r_threat <= 0)):
+        raise cost.error(key, f"increment weights must be > 0, and r_rate_{platform} must be given too")
     gamma = cost.number("gamma", min=0.0)
     if not (0.0 < gamma <= 1.0):
         raise cost.error("gamma", f"must lie in (0, 1], got {gamma}")
@@ -88,4 +93,6 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
                gp_ell=comp.number("ell", 3.0, positive=True), gp_sf2=comp.number("sf2", 0.05, positive=True),
                gp_sn2=comp.number("sn2", 1e-4, positive=True), gp_nu=comp.number("nu", 0.05, positive=True),
                gp_m_max=comp.integer("m_max", 48, min=1), gp_n_max=comp.integer("n_max", 400, min=2),
-               R_rate=None if r_rate is None else np.diag(r_rate))
+               gp_linearisation=comp.string("linearisation", "nominal", choices=("nominal", "gp")),
+               R_rate=None if r_rate is None else np.diag(r_rate),
+               R_rate_threat=None if r_threat is None else np.diag(r_threat))

@@ -46,6 +46,7 @@ from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
 from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
+from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import nearest_on_polyline
 from vflpcd.core.ports import ControllerBase, ControllerStatus
@@ -75,7 +76,27 @@ class PlanResult:
 
 
 def plan_job(planner, job: ReplanJob) -> PlanResult:
-    """Run a replan (worker side; raises GuidanceError when no plan exists)."""
+    """Run a replan (worker side; raises GuidanceError when no plan exists). A plan beyond the
+    robot's curvature limit is planned again by the planner's ``recovery`` (narrower margins); the
+    recovery plan is taken when it is drivable, else the first plan stands (and the safety gate
+    refuses it)."""
+    result = _plan_once(planner, job)
+    if planner.drivable(result.plan):
+        return result
+    narrow = planner.recovery()
+    if narrow is None:
+        return result
+    try:
+        again = _plan_once(narrow, job)
+    except GuidanceError:
+        return result
+    if not narrow.drivable(again.plan):
+        return result
+    log.info("event=recovery_plan t=%.2f margin=%.2f", job.t, narrow.params.safety_margin)
+    return again
+
+
+def _plan_once(planner, job: ReplanJob) -> PlanResult:
     statics = [o for o in job.obstacles if not o.moving]
     movers = [o for o in job.obstacles if o.moving]
     prepared = planner.prepare(job.s, statics)
@@ -117,6 +138,7 @@ class VFLPCParams:
     refit_every: int = 100
     refit_min_samples: int = 60
     R_rate: np.ndarray | None = None
+    R_rate_threat: np.ndarray | None = None
     gp_channels: tuple[str, ...] = ("vx", "vy", "omega")
     gp_ell: float = 3.0
     gp_sf2: float = 0.05
@@ -124,6 +146,7 @@ class VFLPCParams:
     gp_nu: float = 0.05
     gp_m_max: int = 48
     gp_n_max: int = 400
+    gp_linearisation: str = "nominal"
 
 
 
@@ -196,8 +219,10 @@ class VFLPC(ControllerBase):
         self.N = max(1, int(round(params.horizon_s / self.dt)))
         self.dim = planner.dim
         self.errors = em = ErrorModel(model, params.Q_x, params.q_lift, params.R, params.gamma, self.N, limits,
-                                      compensator.comp if compensator is not None else None)
+                                      compensator.comp if compensator is not None else None,
+                                      gp_jacobians=params.gp_linearisation == "gp")
         self.rate = None
+        self._threat_mode = None      # (rate form, solver) while a mover is in E_p (R_rate_threat)
         if solver is None:
             u_std = None
             A, B, Q, R, P = em.A, em.B, em.Q, em.R, em.P
@@ -209,7 +234,12 @@ class VFLPC(ControllerBase):
             feats = rl_features(model, params.error_std, planner.v_desired, params.samples, params.size,
                                 params.nu, params.ell_factor, params.seed, u_std)
             solver = EbRHRL(A, B, Q, R, P, em.gamma, feats, self.N, params.eta_a, params.i_max, params.tol)
+            if self.rate is not None and params.R_rate_threat is not None:
+                rt = RateForm.of(em.A, em.B, em.Q, em.R, params.R_rate_threat, em.gamma)
+                self._threat_mode = (rt, EbRHRL(rt.A, rt.B, rt.Q, rt.R, rt.P, em.gamma, feats, self.N, params.eta_a,
+                                                params.i_max, params.tol))
         self.solver, self.compensator = solver, compensator
+        self._cruise_mode = (self.rate, solver)
         self.plan_gate = None          # set by the safety guard (vflpcd.core.safety): refuses undrivable replans
         self.planning, self.jobs = self, self
         self.body_radius, self.safety_margin = float(body_radius), float(safety_margin)
@@ -217,6 +247,10 @@ class VFLPC(ControllerBase):
 
     # ------------------------------------------------------------------ protocol
     def reset(self) -> None:
+        if self._threat_mode is not None:
+            self._threat_mode[1].reset()
+            self.rate, self.solver = self._cruise_mode
+        self._threatened = False
         self.solver.reset()
         self._plan = None
         self._ends_path = False
@@ -261,6 +295,7 @@ class VFLPC(ControllerBase):
         gp = self.compensator.model if self.compensator is not None else None
         problem = self.errors.problem(frame, u_prev, gp)
         barrier = self._barrier(frame, p_ref_world, pos, vel, t, obstacles)
+        self._select_mode()
         if self.rate is not None:
             increment = self.rate.problem(problem)
             u_tilde0 = self.rate.deviation(increment.x0, self._solve(increment, barrier, self.rate.K_terminal))
@@ -455,7 +490,19 @@ class VFLPC(ControllerBase):
                 out[:, j] = cols[name]
         return out
 
+    def _select_mode(self) -> None:
+        """The increment weights of the tick: ``R_rate_threat`` while a mover threatens (the barrier
+        is on: braking and swerving must not be slowed by the cruise smoothing), else ``R_rate``.
+        A switch starts the other solver afresh; the applied command stays continuous (u_prev)."""
+        threatened = bool(self.last_threats)
+        if self._threat_mode is None or threatened == self._threatened:
+            return
+        self._threatened = threatened
+        self.rate, self.solver = self._threat_mode if threatened else self._cruise_mode
+        self.solver.reset()
+
     def _barrier(self, frame: TickFrame, p_world: np.ndarray, pos, vel, t: float, obstacles) -> HorizonBarrier:
+        self.last_threats = ()
         idx = np.array(self.errors.layout.position)
         p_ref = frame.x_r[:, idx]
         p = self.params

@@ -40,4 +40,8 @@ class GuidanceParams:
     virtual: str
     virtual_buffer: float
     curvature_use: float
+    margin_per_speed: float = 0.0
+    mover_margin_time: float = 0.0
+    reactive_per_speed: float = 0.0
+    recovery_margin: float = 0.1
     virtual_obstacles: tuple[VirtualObstacleSpec, ...] = ()

@@ -23,6 +23,7 @@
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, replace
 from functools import partial
 from typing import Sequence
@@ -92,13 +93,41 @@ class PlannerBase:
         if not kappa_limit > 0:
             raise GuidanceError(f"kappa_limit must be positive (inf: none), got {kappa_limit}")
         self.body_radius, self.dt = body_radius, control_period
+        self.kappa_limit = float(kappa_limit)
         self.kappa_max = params.curvature_use * kappa_limit
 
+    def drivable(self, plan: "GuidancePlan") -> bool:
+        """Whether the plan's curvature stays within the robot's geometric limit (``kappa_limit``)."""
+        return bool(np.all(np.isfinite(plan.kappa)) and np.max(np.abs(plan.kappa), initial=0.0) <= self.kappa_limit)
+
+    def recovery(self) -> "PlannerBase | None":
+        """The same planner with the clearance beyond the body radius taken down to ``recovery_margin``
+        (None when the margins already are that small): a robot that ended up close to an obstacle
+        (braked beside it, a pedestrian stepped near) may find no drivable path that keeps the full
+        margins, and the safety supervisor still keeps its own margin around the exact body."""
+        p = self.params
+        if p.safety_margin <= p.recovery_margin and p.margin_per_speed == 0.0 and p.mover_margin_time == 0.0:
+            return None
+        narrow = copy.copy(self)
+        narrow.params = replace(p, safety_margin=p.recovery_margin, margin_per_speed=0.0, mover_margin_time=0.0)
+        return narrow
+
+    def margin(self, o: ObstacleState) -> float:
+        """The clearance kept beyond the body radius from obstacle o: ``safety_margin``, plus
+        ``margin_per_speed`` s of the desired speed (the tracking error grows with speed), plus
+        ``mover_margin_time`` s of the obstacle's own speed (its predicted position grows uncertain)."""
+        p = self.params
+        return (p.safety_margin + p.margin_per_speed * self.v_desired
+                + p.mover_margin_time * float(np.linalg.norm(o.velocity)))
+
     def implicit(self, o: ObstacleState) -> ObstacleImplicit:
-        """varphi_i of an obstacle: Q at body radius + safety margin, R reactive_margin further out."""
-        rep = self.body_radius + self.params.safety_margin
+        """varphi_i of an obstacle: Q at body radius + ``margin(o)``, R ``reactive_margin`` plus
+        ``reactive_per_speed`` s of the desired speed further out (room to turn in)."""
+        p = self.params
+        rep = self.body_radius + self.margin(o)
+        reactive = rep + p.reactive_margin + p.reactive_per_speed * self.v_desired
         return ObstacleImplicit.around(o.id, o.shape, o.center, o.yaw, o.velocity, o.stamp,
-                                       reactive_distance=rep + self.params.reactive_margin, repulsive_distance=rep)
+                                       reactive_distance=reactive, repulsive_distance=rep)
 
     def check_clear(self, point: np.ndarray, terms, t: float, what: str) -> np.ndarray:
         """point (d,) checked finite and outside every term's repulsive boundary at time t; GuidanceError

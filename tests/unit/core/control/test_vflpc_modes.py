@@ -1,0 +1,138 @@
+"""VF-LPC's tick modes: the cruise increment weights and the threat weights while a mover is in
+E_p; the GP's linearisation (nominal Jacobians by default, eq. JocabianMatrices on request); the
+recovery replan with narrower margins when the first plan is beyond the curvature limit."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.tomlread import Table
+from vflpcd.config.params import vflpc_params
+from vflpcd.config.scenarios import load_scenario
+from vflpcd.controllers.vflpc import load_params, make_vflpc, make_vflpc_ml
+from vflpcd.core.guidance.planner import PlannerBase
+from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.shapes import Circle
+from vflpcd.core.vflpc import plan_job
+from sim.plants import make_plant
+from vflpcd.base.paths import config_dir
+from vflpcd.base.tomlread import load_toml
+
+DT = 0.05
+
+
+@pytest.fixture(scope="module")
+def straight():
+    return dataclasses.replace(load_scenario("carsim_avoidance"), obstacles=())
+
+
+def crossing(y: float) -> ObstacleState:
+    """A pedestrian 12 m ahead, y m beside the road, walking across it at 1.2 m/s."""
+    return ObstacleState("walker", Circle(0.4), np.array([12.0, y]), 0.0, np.array([0.0, -1.2 * np.sign(y)]), 0.0)
+
+
+def test_threat_weights_while_a_mover_is_in_the_game_region(straight):
+    ctrl = make_vflpc(straight)
+    x0 = make_plant(straight, 0).state
+    cruise, threat = ctrl._cruise_mode[1], ctrl._threat_mode[1]
+    assert cruise is not threat
+    assert ctrl.params.R_rate[0, 0] > ctrl.params.R_rate_threat[0, 0]   # smoother throttle when cruising
+    ctrl.step(x0, 0.0)
+    assert ctrl.solver is cruise and ctrl.last_threats == ()
+    ctrl.step(x0, DT, [crossing(3.0)])
+    assert ctrl.last_threats == ("walker",) and ctrl.solver is threat
+    u = ctrl.step(x0, 2 * DT)                          # the walker is gone: back to cruising
+    assert ctrl.last_threats == () and ctrl.solver is cruise and np.all(np.isfinite(u))
+    ctrl.step(x0, 3 * DT, [crossing(3.0)])
+    ctrl.reset()
+    assert ctrl.solver is cruise
+
+
+def _table(text_patch: dict) -> Table:
+    path = config_dir() / "controllers" / "vflpc.toml"
+    data = load_toml(path)
+    for section, values in text_patch.items():
+        data[section].update(values)
+        for k, v in list(data[section].items()):
+            if v is None:
+                del data[section][k]
+    return Table(data, path)
+
+
+def test_threat_weights_need_the_cruise_weights():
+    with pytest.raises(ConfigError, match="r_rate_threat_ground"):
+        vflpc_params(_table({"cost": {"r_rate_ground": None}}), "ground")
+    with pytest.raises(ConfigError, match="r_rate_threat_ground"):
+        vflpc_params(_table({"cost": {"r_rate_threat_ground": [0.0, 1.0]}}), "ground")
+
+
+def test_linearisation_choice_is_checked():
+    assert load_params("ground").gp_linearisation == "nominal"
+    assert vflpc_params(_table({"compensation": {"linearisation": "gp"}}), "ground").gp_linearisation == "gp"
+    with pytest.raises(ConfigError, match="linearisation"):
+        vflpc_params(_table({"compensation": {"linearisation": "exact"}}), "ground")
+
+
+class ConstantGP:
+    """A GP stand-in: mean d0 everywhere, Jacobian J everywhere."""
+
+    def __init__(self, n_y: int, n_z: int) -> None:
+        self.d0, self.J = np.full(n_y, 0.3), np.full((n_y, n_z), 0.5)
+
+    def means(self, z):
+        return np.tile(self.d0, (len(z), 1))
+
+    def mean_jacobian(self, z):
+        return self.d0, self.J
+
+
+@pytest.mark.parametrize("gp_jacobians", [False, True])
+def test_the_gp_mean_corrects_c_and_the_jacobians_only_on_request(straight, gp_jacobians):
+    ctrl = make_vflpc_ml(straight)
+    em = ctrl.errors
+    em.gp_jacobians = gp_jacobians
+    x0 = make_plant(straight, 0).state
+    ctrl.step(x0, 0.0)
+    frame = em.frame(x0, ctrl._reference(0.0))
+    u_prev = np.zeros(2)
+    gp = ConstantGP(em.comp.n_y, em.comp.n_z)
+    nominal, corrected = em.problem(frame, u_prev), em.problem(frame, u_prev, gp)
+    shift = (gp.d0 @ em.comp.B_d.T)[:-1]
+    np.testing.assert_allclose(corrected.c - nominal.c, np.tile(shift, (em.N, 1)), atol=1e-12)
+    same = np.allclose(corrected.A, nominal.A) and np.allclose(corrected.B, nominal.B)
+    assert same is (not gp_jacobians)
+
+
+def test_margins_scale_with_speed_and_the_obstacles_motion(straight):
+    planner = make_vflpc(straight).planner
+    p = planner.params
+    planner.params = dataclasses.replace(p, safety_margin=0.2, margin_per_speed=0.02, mover_margin_time=0.5)
+    still = ObstacleState("barrel", Circle(0.5), np.array([20.0, 0.0]), 0.0, np.zeros(2), 0.0)
+    walking = dataclasses.replace(still, velocity=np.array([0.0, 1.5]))
+    assert planner.margin(still) == pytest.approx(0.2 + 0.02 * planner.v_desired)
+    assert planner.margin(walking) == pytest.approx(planner.margin(still) + 0.75)
+    narrow = planner.recovery()
+    assert narrow is not planner and narrow.margin(walking) == pytest.approx(p.recovery_margin)
+    assert planner.margin(still) == pytest.approx(0.2 + 0.02 * planner.v_desired)     # the planner is unchanged
+    assert narrow.recovery() is None
+
+
+def test_an_undrivable_plan_is_planned_again_with_narrow_margins(straight, monkeypatch):
+    ctrl = make_vflpc(straight)
+    x0 = make_plant(straight, 0).state
+    ctrl.step(x0, 0.0, [])
+    job = ctrl._fresh_job(0.0)
+    seen = []
+
+    def drivable(self, plan):
+        seen.append(self.params.safety_margin)
+        return self.params.safety_margin <= self.params.recovery_margin
+
+    monkeypatch.setattr(PlannerBase, "drivable", drivable)
+    result = plan_job(ctrl.planner, job)
+    assert seen == [ctrl.planner.params.safety_margin, ctrl.planner.params.recovery_margin]
+    assert result.plan is not None
+    monkeypatch.setattr(PlannerBase, "drivable", lambda self, plan: False)      # neither is: the first stands
+    assert plan_job(ctrl.planner, job).plan is not None
