@@ -23,7 +23,6 @@
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, replace
 from functools import partial
 from typing import Sequence
@@ -108,9 +107,9 @@ class PlannerBase:
         p = self.params
         if p.safety_margin <= p.recovery_margin and p.margin_per_speed == 0.0 and p.mover_margin_time == 0.0:
             return None
-        narrow = copy.copy(self)
-        narrow.params = replace(p, safety_margin=p.recovery_margin, margin_per_speed=0.0, mover_margin_time=0.0)
-        return narrow
+        narrow = replace(p, safety_margin=p.recovery_margin, margin_per_speed=0.0, mover_margin_time=0.0)
+        return type(self)(self.path, narrow, self.v_desired, self.a_lat_max, self.body_radius, self.dt,
+                          kappa_limit=self.kappa_limit)
 
     def margin(self, o: ObstacleState) -> float:
         """The clearance kept beyond the body radius from obstacle o: ``safety_margin``, plus
