@@ -124,6 +124,35 @@ def cmd_bench_safety(args) -> int:
     return 0
 
 
+def cmd_bench_suite(args) -> int:
+    from sim.bench.suite import CONTROLLERS, suite_names
+    from vflpcd.controllers import CONTROLLERS as KNOWN
+
+    names = suite_names()
+    for name in args.only or ():
+        if name not in names:
+            raise ConfigError("command line", "--only", f"no such suite scenario {name!r} (have: {', '.join(names)})")
+    ground = [c for c, (_, platforms) in KNOWN.items() if "ground" in platforms]
+    controllers = tuple(dict.fromkeys(c.strip() for c in args.controllers.split(","))) if args.controllers \
+        else CONTROLLERS
+    for name in controllers:
+        if name not in ground:
+            raise ConfigError("command line", "--controllers",
+                              f"expected ground controllers from {', '.join(ground)}, got {name!r}")
+    import importlib.util
+
+    solver = {"nmpc_cbf": "casadi", "koopman_mpc": "osqp"}
+    missing = [f"{c} needs {solver[c]}" for c in controllers
+               if c in solver and importlib.util.find_spec(solver[c]) is None]
+    if missing:
+        print(f"vflpcd: error: {', '.join(missing)}: pip install -e '.[bench]'", file=sys.stderr)
+        return 2
+    from sim.bench.suite import bench_suite
+
+    bench_suite(args.out, controllers, tuple(dict.fromkeys(args.only)) if args.only else None)
+    return 0
+
+
 def cmd_bench_dynamics(args) -> int:
     from sim.bench.dynamics import bench_dynamics
     from vflpcd.config.koopman_file import load_koopman

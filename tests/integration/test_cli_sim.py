@@ -166,3 +166,38 @@ def test_bench_ml_refuses_a_single_lap_in_one_line(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [
         "vflpcd: error: command line: --seeds/--laps: expected at least one seed and two laps (lap 2 is measured)"]
+
+
+def test_bench_suite_runs_one_scene_with_pure_pursuit_and_writes_json_and_png(tmp_path):
+    proc = subprocess.run(VFLPCD + ["bench", "suite", "--only", "oncoming_car", "--controllers", "pure_pursuit",
+                                    "--out", str(tmp_path)], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "MPLBACKEND": "Agg"})
+    assert proc.returncode == 0, proc.stderr
+    for label in ("scenario", "outcome", "clear m", "J_MC", "RMS lat", "peak lat", "jerk p99", "t_cal ms",
+                  "totals over 1 scenes", "completed without collision 1/1"):
+        assert label in proc.stdout
+    doc = json.loads((tmp_path / "bench_suite.json").read_text())
+    (r,) = doc["rows"]
+    assert (r["scenario"], r["controller"], r["outcome"], r["collisions"]) == ("oncoming_car", "pure_pursuit",
+                                                                               "completed", 0)
+    assert r["min_clearance"] > 0.5 and r["t_cal_median"] > 0
+    pp = doc["totals"]["controllers"]["pure_pursuit"]
+    assert pp == {"clean": 1, "collisions": 0, "lowest_J_MC": 1, "runs": 1}
+    assert doc["totals"]["vflpc_peak_lateral_over_nmpc"] is None
+    assert (tmp_path / "bench_suite.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_bench_suite_refuses_an_unknown_scene_and_controller_in_one_line(tmp_path):
+    proc = subprocess.run(VFLPCD + ["bench", "suite", "--only", "oncoming_car", "nope", "--out", str(tmp_path)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and proc.stdout == ""
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith("vflpcd: error: command line: --only: no such suite scenario 'nope' (have: ")
+    assert "slalom_cones" in line
+    proc = subprocess.run(VFLPCD + ["bench", "suite", "--controllers", "vflpc,pd_tracker", "--out", str(tmp_path)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith("vflpcd: error: command line: --controllers: expected ground controllers") \
+        and "'pd_tracker'" in line
+    assert not (tmp_path / "bench_suite.json").exists()

@@ -107,6 +107,15 @@ def main(argv: list[str] | None = None) -> int:
     _out(b)
     b.set_defaults(func=_simulator("cmd_bench_safety"))
 
+    b = bench.add_parser("suite", help="every ground controller on the road scenes of config/scenarios/suite/ "
+                                       "(outcome, collisions, clearance, J_MC, lateral error, jerk, t_cal; totals)")
+    b.add_argument("--only", nargs="+", action="extend", default=None, metavar="NAME",
+                   help="scenes of config/scenarios/suite/ to run (default all)")
+    b.add_argument("--controllers", default=None, metavar="A,B,...",
+                   help="comma-separated ground controllers (default vflpc,nmpc_cbf,koopman_mpc,pure_pursuit)")
+    _out(b)
+    b.set_defaults(func=_simulator("cmd_bench_suite"))
+
     p = sub.add_parser("run", help="run a mission: the daemon (fixed-rate VF-LPC loop, workers, telemetry, log)")
     p.add_argument("mission", type=Path, help="mission file (config/missions/*.toml)")
     p.add_argument("--log-dir", type=Path, default=None, help="flight-log folder (default: the mission's log.dir)")
