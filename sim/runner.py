@@ -115,7 +115,7 @@ def run_closed_loop(scenario: Scenario, controller: ControllerBase, seed: int = 
         world.update(t, pos)
         perceived = world.snapshot(t)
         if failsafe:
-            u, t_cal = guard.emergency(x), 0.0
+            u, t_cal = guard.emergency(x, perceived, t), 0.0
         else:
             t0 = time.perf_counter_ns()
             try:
@@ -126,7 +126,7 @@ def run_closed_loop(scenario: Scenario, controller: ControllerBase, seed: int = 
                     outcome = "error"
                     u = np.full(len(plant.control_names), np.nan)
                 else:
-                    u = guard.emergency(x)
+                    u = guard.emergency(x, perceived, t)
             t_cal = (time.perf_counter_ns() - t0) * 1e-9
         finite = u.shape == (len(plant.control_names),) and bool(np.all(np.isfinite(u)))
         sent, override, t_sup = u, False, 0.0

@@ -62,9 +62,11 @@ class SafetyGuard:
     def interventions(self) -> int:
         return self.supervisor.interventions
 
-    def emergency(self, state: np.ndarray) -> np.ndarray:
-        """The platform's emergency manoeuvre (brake, steering held / brake to hover and hold)."""
-        return self.supervisor.stop(state)
+    def emergency(self, state: np.ndarray, obstacles: Sequence[ObstacleState] = (), t: float = 0.0) -> np.ndarray:
+        """The platform's emergency manoeuvre (brake, steering held / brake to hover and hold); with
+        the known obstacles at time t, a car brakes with the steering that keeps it off them
+        (``Supervisor.stop``)."""
+        return self.supervisor.stop(state, obstacles, t)
 
     def step(self, t: float, state: np.ndarray, command: np.ndarray, obstacles: Sequence[ObstacleState],
              controller=None, route_error: float = np.nan) -> GuardStep:

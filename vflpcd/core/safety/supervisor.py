@@ -14,8 +14,10 @@ kinematic bicycle on two arcs of constant curvature kappa = tan(delta) / L (clos
 reaction time the command's acceleration and the mean of the steering angle before and after its
 rate-limited move; then braking at ``decel_factor`` |a_min| with that steering held, to standstill.
 The applied steering angle is not measured: it is tracked from the commands sent, through the
-actuator's rate limit. Body: covering discs (``Footprint``). Emergency: a_x = a_min, steering held;
-when that can no longer stop the car short of contact, a_x = a_min with the steering (held, the
+actuator's rate limit. A command also passes when the stop that straightens the steering at its
+rate limit keeps the margin (a car steering back towards its lane beside an obstacle). Body:
+covering discs (``Footprint``). Emergency: a_x = a_min, with the steering held or straightened,
+whichever keeps further off; when that can no longer stop the car short of contact, a_x = a_min with the steering (held, the
 controller's, or full lock either way) whose prediction, the steering moving on at its rate limit
 through the stop, meets the obstacle at the lowest speed (or not at all).
 
@@ -166,6 +168,11 @@ class Supervisor:
                 arrays = arrays.subset(near)
             pos, yaw, times = self._poses(state, u, True)
             (cs, ws), (cm, wm) = self._clearances(pos, yaw, t + times, arrays)
+            if min(cs, cm) < self.cfg.release_margin:
+                for alt in self._alternative_stops(state, u):
+                    (ca, wa), (cb, wb) = self._clearances(*alt[:2], t + alt[2], arrays)
+                    if min(ca, cb) > min(cs, cm):
+                        (cs, ws), (cm, wm) = (ca, wa), (cb, wb)
             if cm < self.cfg.release_margin:
                 pos, yaw, times = self._poses(state, u, False)
                 _, (cg, wg) = self._clearances(pos, yaw, t + times, arrays, movers_only=True)
@@ -174,6 +181,12 @@ class Supervisor:
             result = (cs, ws) if cs <= cm else (cm, wm)
         self._memo = (key, result)
         return result
+
+    def _alternative_stops(self, state: np.ndarray, u: np.ndarray) -> list:
+        """Other stops after "u for the reaction time" that the emergency manoeuvre can take (poses,
+        yaws, times as ``_poses``): the better of them and the plain stop judges a command. None by
+        default."""
+        return []
 
     def _memo_key(self, state: np.ndarray, u: np.ndarray, obstacles: Sequence[ObstacleState]) -> tuple | None:
         """What the prediction depends on when every obstacle stands still (None when one moves: then
@@ -296,13 +309,18 @@ class Supervisor:
     def emergency(self, state: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def _override(self, state: np.ndarray, u: np.ndarray, obstacles: Sequence[ObstacleState], t: float) -> np.ndarray:
-        """What replaces the command u when it fails: the emergency manoeuvre."""
+    def _override(self, state: np.ndarray, u: np.ndarray | None, obstacles: Sequence[ObstacleState],
+                  t: float) -> np.ndarray:
+        """What replaces the command u (None: there is none) when it fails: the emergency manoeuvre."""
         return self.emergency(state)
 
-    def stop(self, state: np.ndarray) -> np.ndarray:
-        """The emergency manoeuvre's command, as sent (after a failsafe, without a controller)."""
-        u = self.emergency(state)
+    def stop(self, state: np.ndarray, obstacles: Sequence[ObstacleState] = (), t: float = 0.0) -> np.ndarray:
+        """The emergency manoeuvre's command, as sent (after a failsafe, without a controller). With the
+        known obstacles at time t it is chosen as when a command is overridden (``_override``): a car
+        whose stop with the steering held would run into one brakes with the steering that meets it
+        slowest or not at all."""
+        state = np.asarray(state, float)
+        u = self._override(state, None, obstacles, t) if obstacles else self.emergency(state)
         self._sent(u)
         return u
 
@@ -372,11 +390,13 @@ class GroundSupervisor(Supervisor):
         t1, v1, s1 = _run(v0, float(u[0]), self.reaction)
         return s1 + v1 * v1 / (2.0 * self.a_brake), t1 + v1 / self.a_brake
 
-    def _poses(self, state: np.ndarray, u: np.ndarray, brake: bool, ramp: bool = False):
+    def _poses(self, state: np.ndarray, u: np.ndarray, brake: bool, ramp: bool = False,
+               settle: float | None = None):
         """Poses (K, 2), yaws (K,) and times from now (K,) of "u for the reaction time, then the stop"
         (``brake``) or "u held as long" (not ``brake``). The steering moves toward u's at the rate
         limit for one period and is then held; with ``ramp`` it keeps moving through the stop (the
-        second arc has the steering reached halfway through it)."""
+        second arc has the steering reached halfway through it); with ``settle`` it moves from
+        there toward ``settle`` through the stop (the emergency stop that straightens, ``settle`` 0)."""
         X, Y, psi, vx, vy, _ = state[self._idx].tolist()
         L, lim, T = self.limits.wheelbase, self.limits, self.reaction
         v0 = max(vx, 0.0)
@@ -392,6 +412,9 @@ class GroundSupervisor(Supervisor):
         if ramp:
             turn = lim.delta_rate_max * (self.reaction + 0.5 * t2)
             k2 = math.tan(d0 + _clamp(float(u[1]) - d0, -turn, turn)) / L
+        elif settle is not None:
+            turn = lim.delta_rate_max * 0.5 * t2
+            k2 = math.tan(d1 + _clamp(settle - d1, -turn, turn)) / L
         s_end = s1 + s2
         if s_end <= self.cfg.max_step_m:           # (nearly) at rest: the pose now and the end pose
             end = _arc_end(X, Y, psi, k1, s_end)
@@ -437,16 +460,28 @@ class GroundSupervisor(Supervisor):
         """Strongest braking with the steering held where it is."""
         return self._brake_command(state)
 
-    def _override(self, state: np.ndarray, u: np.ndarray, obstacles: Sequence[ObstacleState], t: float) -> np.ndarray:
+    def _alternative_stops(self, state: np.ndarray, u: np.ndarray) -> list:
+        """The stop that straightens the steering at its rate limit: a car steering back towards its
+        lane beside an obstacle need not brake on the arc that turns it into the obstacle."""
+        return [self._poses(state, u, True, settle=0.0)]
+
+    def _override(self, state: np.ndarray, u: np.ndarray | None, obstacles: Sequence[ObstacleState],
+                  t: float) -> np.ndarray:
         """Strongest braking with the steering held, unless that can no longer stop the car short of
-        contact: then strongest braking with the steering (held, the controller's, or full lock
-        either way, reached at the rate limit) whose prediction meets the obstacle slowest (or not at all)."""
+        contact: then strongest braking with the steering (held, the controller's when there is a
+        command u, or full lock either way, reached at the rate limit) whose prediction meets the
+        obstacle slowest (or not at all)."""
         brake = self._brake_command(state)
+        if obstacles:
+            straight = np.array([self.limits.a_min, 0.0])
+            if self.predicted_clearance(state, straight, obstacles, t)[0] > self.predicted_clearance(
+                    state, brake, obstacles, t)[0]:
+                brake = straight        # the stop that straightens keeps further off (``_alternative_stops``)
         if obstacles and self.predicted_clearance(state, brake, obstacles, t)[0] < 0.0:
             arrays = ObstacleArrays.of(obstacles, self.DIM)
             lim = self.limits
             best, harm = brake, self._impact(state, brake, arrays, t)
-            for steer in (float(u[1]), lim.delta_max, -lim.delta_max):
+            for steer in ((lim.delta_max, -lim.delta_max) if u is None else (float(u[1]), lim.delta_max, -lim.delta_max)):
                 candidate = np.array([lim.a_min, steer])
                 h = self._impact(state, candidate, arrays, t)
                 if h < harm - 1e-3:

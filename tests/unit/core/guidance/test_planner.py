@@ -9,7 +9,9 @@ from vflpcd.config.scenarios import default_guidance, load_scenario
 from vflpcd.core.guidance.grid import FieldGrid, integrate
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.config.params import guidance_params
-from vflpcd.core.guidance.planner import GuidancePlanner
+from vflpcd.core.guidance.planner import FOLLOW_SLACK, GuidancePlanner
+from vflpcd.core.guidance.speed import plan_speed
+from vflpcd.core.guidance.trajectory import timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
 from vflpcd.core.shapes import Box, Circle, Ellipse
@@ -231,3 +233,53 @@ gamma = 1
         {"center": [5.0, -6.0], "radius": 5.0, "c": -0.2, "parent": "nobody"}]}, "s.toml", "guidance"), s.guidance)
     with pytest.raises(GuidanceError, match="parent 'nobody'"):
         GuidancePlanner(s.path, bad, 3.0, 2.0, 1.25, 0.05).prepare(0.0, [static("c1", Circle(1.0), 8.0, 1.2)])
+
+
+@pytest.mark.parametrize("speed, side", [(4.0, -1.0), (-4.0, 1.0), (1.2, 1.0)])
+def test_a_fast_crosser_is_passed_behind_and_a_walker_where_it_leaves_the_path_least(params, speed, side):
+    """A cyclist crossing at 4 m/s from either side is passed on the side it comes from; a walker at
+    1.2 m/s, 1 m right of the path, is passed on the left (the side its region reaches less far)."""
+    path = ReferencePath.line([0.0, 0.0], [80.0, 0.0])
+    planner = GuidancePlanner(path, params, 6.0, 3.0, 1.0, 0.05)
+    y = -1.0 if speed > 0 else 1.0
+    mover = ObstacleState(id="m", shape=Circle(0.5), center=np.array([30.0, y]), yaw=0.0,
+                          velocity=np.array([0.0, speed]), stamp=0.0)
+    term = planner.actual_term(planner.implicit(mover), 0.0)
+    assert term.side == side
+
+
+def test_a_plan_into_a_slow_car_it_cannot_pass_is_slowed_to_follow_it(params):
+    """followed(): the lane's own points, speed-planned slower until the trajectory stays out of the
+    slow car's repulsive region; none for a car coming the other way on them."""
+    path = ReferencePath.line([0.0, 0.0], [120.0, 0.0])
+    planner = GuidancePlanner(path, params, 7.0, 3.0, 1.25, 0.05)
+    xy = np.column_stack([np.linspace(0.0, 100.0, 401), np.zeros(401)])
+
+    def mover(x, vx):
+        o = ObstacleState(id="car", shape=Box(4.5, 1.9), center=np.array([x, 0.0]), yaw=0.0,
+                          velocity=np.array([vx, 0.0]), stamp=0.0)
+        return planner.actual_term(planner.implicit(o), 0.0)
+
+    lead = [mover(20.0, 3.0)]
+    s, kappa, v = plan_speed(xy, 7.0, 3.0, params.a_accel, params.a_decel, 7.0)
+    assert planner.meets_mover(lead, timed_trajectory(xy, s, v, 0.0, 0.05), FOLLOW_SLACK)
+    s, kappa, v, trajectory = planner.followed(lead, xy, 0.0, 7.0, None)
+    assert not planner.meets_mover(lead, trajectory) and v.max() <= 7.0 and v[-1] < 3.5
+    assert planner.followed([mover(60.0, -7.0)], xy, 0.0, 7.0, None) is None
+
+
+def test_a_graze_of_a_movers_region_is_not_a_conflict_to_follow(params):
+    path = ReferencePath.line([0.0, 0.0], [120.0, 0.0])
+    planner = GuidancePlanner(path, params, 7.0, 3.0, 1.25, 0.05)
+    o = ObstacleState(id="car", shape=Box(4.5, 1.9), center=np.array([40.0, 0.0]), yaw=0.0,
+                      velocity=np.array([2.0, 0.0]), stamp=0.0)
+    term = planner.actual_term(planner.implicit(o), 0.0)
+    imp = term.implicit
+    # a straight line beside the car, just inside its repulsive boundary at the closest point
+    for y in np.linspace(4.0, 1.0, 61):
+        xy = np.column_stack([np.linspace(0.0, 100.0, 401), np.full(401, y)])
+        s, kappa, v = plan_speed(xy, 7.0, 3.0, params.a_accel, params.a_decel, 7.0)
+        traj = timed_trajectory(xy, s, v, 0.0, 0.05)
+        if planner.meets_mover([term], traj):
+            break
+    assert planner.meets_mover([term], traj) and not planner.meets_mover([term], traj, FOLLOW_SLACK)

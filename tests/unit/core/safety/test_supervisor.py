@@ -199,3 +199,34 @@ def test_a_repeated_tick_at_rest_gives_the_same_verdict_and_a_changed_obstacle_a
     walker = obstacle("walker", Circle(0.3), [5.0, 0.0], velocity=(-1.0, 0.0), stamp=3.0)
     later = obstacle("walker", Circle(0.3), [4.0, 0.0], velocity=(-1.0, 0.0), stamp=4.0)
     assert sup.predicted_clearance(plant.state, u, [later], 4.0) != sup.predicted_clearance(plant.state, u, [walker], 3.0)
+
+
+def test_the_stop_after_a_failsafe_steers_off_what_braking_with_the_steering_held_would_hit():
+    # tripped while steering 0.3 rad left; a barrel stands where braking with that steering held
+    # ends: the plain stop meets it, the stop that knows it steers off
+    def tripped():
+        plant, sup, body = car(7.0)
+        for k in range(12):                                                   # the steering the car holds
+            plant.step(sup.filter(plant.state, np.array([0.0, 0.3]), [], k * DT).command, DT)
+        return plant, sup, body
+
+    plant, sup, _ = tripped()
+    arc = []
+    for _ in range(int(3.0 / DT)):
+        plant.step(sup.stop(plant.state), DT)
+        arc.append(plant.position())
+    stop = next(k for k in range(1, len(arc)) if np.allclose(arc[k], arc[k - 1]))       # at rest here
+    ahead = (arc[stop - 1] - arc[stop - 3]) / np.linalg.norm(arc[stop - 1] - arc[stop - 3])
+    barrel = obstacle("barrel", Circle(0.5), arc[stop - 1] + 1.0 * ahead)     # under the front bumper
+
+    def run(aware: bool):
+        plant, sup, body = tripped()
+        least = np.inf
+        for k in range(int(3.0 / DT)):
+            u = sup.stop(plant.state, [barrel], k * DT) if aware else sup.stop(plant.state)
+            assert u[0] == sup.limits.a_min                                   # it always brakes fully
+            plant.step(u, DT)
+            least = min(least, body.clearance(barrel.shape, barrel.center, 0.0, plant.position(), plant.heading()))
+        return least
+    held, aware = run(False), run(True)
+    assert held <= 0.0 < aware
