@@ -44,4 +44,5 @@ class GuidanceParams:
     mover_margin_time: float = 0.0
     reactive_per_speed: float = 0.0
     recovery_margin: float = 0.1
+    recovery_reactive_margin: float = 0.5
     virtual_obstacles: tuple[VirtualObstacleSpec, ...] = ()

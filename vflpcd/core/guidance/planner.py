@@ -115,13 +115,18 @@ class PlannerBase:
 
     def recovery(self) -> "PlannerBase | None":
         """The same planner with the clearance beyond the body radius taken down to ``recovery_margin``
-        (None when the margins already are that small): a robot that ended up close to an obstacle
-        (braked beside it, a pedestrian stepped near) may find no drivable path that keeps the full
-        margins, and the safety supervisor still keeps its own margin around the exact body."""
+        and the reactive band to ``recovery_reactive_margin`` (None when they already are that small):
+        a robot that ended up close to an obstacle (braked beside it, a pedestrian stepped near), or a
+        gap between parked cars narrower than the full margins, may find no drivable path that keeps
+        them (the overlapping reactive bands bend the field sharply), and the safety supervisor still
+        keeps its own margin around the exact body."""
         p = self.params
-        if p.safety_margin <= p.recovery_margin and p.margin_per_speed == 0.0 and p.mover_margin_time == 0.0:
+        if (p.safety_margin <= p.recovery_margin and p.margin_per_speed == 0.0 and p.mover_margin_time == 0.0
+                and p.reactive_margin <= p.recovery_reactive_margin and p.reactive_per_speed == 0.0):
             return None
-        narrow = replace(p, safety_margin=p.recovery_margin, margin_per_speed=0.0, mover_margin_time=0.0)
+        narrow = replace(p, safety_margin=min(p.safety_margin, p.recovery_margin), margin_per_speed=0.0,
+                         mover_margin_time=0.0, reactive_margin=min(p.reactive_margin, p.recovery_reactive_margin),
+                         reactive_per_speed=0.0)
         return type(self)(self.path, narrow, self.v_desired, self.a_lat_max, self.body_radius, self.dt,
                           kappa_limit=self.kappa_limit)
 
