@@ -43,6 +43,14 @@ def _virtual(t: Table) -> VirtualObstacleSpec:
                                parent=t.string("parent"), gamma=gamma)
 
 
+def _bounds(t: Table, key: str, default: tuple[float, float]) -> tuple[float, float]:
+    """A [low, high] pair of positive numbers, low < high."""
+    lo, hi = t.vector(key, 2) if t.has(key) else default
+    if not (0.0 < lo < hi and np.isfinite(hi)):
+        raise t.error(key, f"expected [low, high] with 0 < low < high, got [{lo:g}, {hi:g}]")
+    return float(lo), float(hi)
+
+
 def vflpc_params(root: Table, platform: str) -> VFLPCParams:
     root.check_known({"cost", "horizon", "solver", "features", "barrier", "replan", "compensation"})
     cost, hor, sol = root.table("cost"), root.table("horizon"), root.table("solver")
@@ -56,7 +64,7 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
     rep.check_known({"end_margin", "velocity_change", "join_tolerance", "stale_distance"})
     comp = root.table("compensation", {})
     comp.check_known({"refit_every", "min_samples", "channels", "ell", "sf2", "sn2", "nu", "m_max", "n_max",
-                      "linearisation"})
+                      "linearisation", "sf2_bounds", "ell_bounds", "sn2_bounds"})
     q, r = cost.vector(f"q_{platform}"), cost.vector(f"r_{platform}")
     if np.any(q < 0) or np.any(r <= 0):
         raise cost.error(f"q_{platform}", "state weights must be >= 0 and control weights > 0")
@@ -94,5 +102,7 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
                gp_sn2=comp.number("sn2", 1e-4, positive=True), gp_nu=comp.number("nu", 0.05, positive=True),
                gp_m_max=comp.integer("m_max", 48, min=1), gp_n_max=comp.integer("n_max", 400, min=2),
                gp_linearisation=comp.string("linearisation", "nominal", choices=("nominal", "gp")),
+               gp_bounds=tuple(_bounds(comp, k, d) for k, d in (("sf2_bounds", (1e-6, 0.1)), ("ell_bounds", (0.3, 30.0)),
+                                                                 ("sn2_bounds", (1e-6, 1e-2)))),
                R_rate=None if r_rate is None else np.diag(r_rate),
                R_rate_threat=None if r_threat is None else np.diag(r_threat))

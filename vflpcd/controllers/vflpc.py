@@ -53,8 +53,8 @@ def curvature_limit(scenario) -> float:
 
 def compensator_for(model, params: VFLPCParams) -> OnlineCompensator:
     """The GP on the channels of ``[compensation]`` (config/controllers/vflpc.toml; B_d selects them,
-    paper section "Model Uncertainties Learning"), input z = [channels, rho_e, u], its sizes and
-    initial hyper-parameters from the same table."""
+    paper section "Model Uncertainties Learning"), input z = [channels, rho_e, u], its sizes,
+    initial hyper-parameters and the refits' bounds on them from the same table."""
     names = model.state_names
     missing = [n for n in params.gp_channels if n not in names]
     if missing:
@@ -66,7 +66,8 @@ def compensator_for(model, params: VFLPCParams) -> OnlineCompensator:
     z_index = rows + list(range(model.n_x, model.n_K - 1))
     comp = KoopmanCompensation(model.A, model.B, B_d, z_index)
     hyp = SEHyper(ell=np.full(n_y, params.gp_ell), sf2=np.full(n_y, params.gp_sf2), sn2=np.full(n_y, params.gp_sn2))
-    return OnlineCompensator(comp, hyp, nu=params.gp_nu, m_max=params.gp_m_max, n_max=params.gp_n_max)
+    bounds = tuple((float(np.log(lo)), float(np.log(hi))) for lo, hi in params.gp_bounds)
+    return OnlineCompensator(comp, hyp, nu=params.gp_nu, m_max=params.gp_m_max, n_max=params.gp_n_max, bounds=bounds)
 
 
 def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str = "vflpc",

@@ -136,3 +136,15 @@ def test_an_undrivable_plan_is_planned_again_with_narrow_margins(straight, monke
     assert result.plan is not None
     monkeypatch.setattr(PlannerBase, "drivable", lambda self, plan: False)      # neither is: the first stands
     assert plan_job(ctrl.planner, job).plan is not None
+
+
+def test_the_refits_hyperparameter_bounds_come_from_the_config(straight):
+    p = load_params("ground")
+    assert p.gp_bounds == ((1e-6, 0.1), (0.3, 30.0), (1e-6, 1e-2))
+    ctrl = make_vflpc_ml(straight)
+    bounds = ctrl.compensator._refit_kw["bounds"]
+    np.testing.assert_allclose(np.exp(bounds), p.gp_bounds)
+    with pytest.raises(ConfigError, match="ell_bounds"):
+        vflpc_params(_table({"compensation": {"ell_bounds": [30.0, 0.3]}}), "ground")
+    with pytest.raises(ConfigError, match="sf2_bounds"):
+        vflpc_params(_table({"compensation": {"sf2_bounds": [0.0, 0.1]}}), "ground")
