@@ -102,7 +102,7 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
                gp_sn2=comp.number("sn2", 1e-4, positive=True), gp_nu=comp.number("nu", 0.05, positive=True),
                gp_m_max=comp.integer("m_max", 48, min=1), gp_n_max=comp.integer("n_max", 400, min=2),
                gp_linearisation=comp.string("linearisation", "nominal", choices=("nominal", "gp")),
-               gp_bounds=tuple(_bounds(comp, k, d) for k, d in (("sf2_bounds", (1e-6, 0.1)), ("ell_bounds", (0.3, 30.0)),
-                                                                 ("sn2_bounds", (1e-6, 1e-2)))),
+               gp_bounds=tuple(_bounds(comp, k, d) for k, d in (("sf2_bounds", (1e-6, 0.1)), ("ell_bounds", (0.3, 10.0)),
+                                                                 ("sn2_bounds", (1e-6, 1e-3)))),
                R_rate=None if r_rate is None else np.diag(r_rate),
                R_rate_threat=None if r_threat is None else np.diag(r_threat))

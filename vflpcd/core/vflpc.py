@@ -147,7 +147,7 @@ class VFLPCParams:
     gp_m_max: int = 48
     gp_n_max: int = 400
     gp_linearisation: str = "nominal"
-    gp_bounds: tuple[tuple[float, float], ...] = ((1e-6, 0.1), (0.3, 30.0), (1e-6, 1e-2))   # sf2, ell, sn2
+    gp_bounds: tuple[tuple[float, float], ...] = ((1e-6, 0.1), (0.3, 10.0), (1e-6, 1e-3))   # sf2, ell, sn2
 
 
 

@@ -140,11 +140,11 @@ def test_an_undrivable_plan_is_planned_again_with_narrow_margins(straight, monke
 
 def test_the_refits_hyperparameter_bounds_come_from_the_config(straight):
     p = load_params("ground")
-    assert p.gp_bounds == ((1e-6, 0.1), (0.3, 30.0), (1e-6, 1e-2))
+    assert p.gp_bounds == ((1e-6, 0.1), (0.3, 10.0), (1e-6, 1e-3))
     ctrl = make_vflpc_ml(straight)
     bounds = ctrl.compensator._refit_kw["bounds"]
     np.testing.assert_allclose(np.exp(bounds), p.gp_bounds)
     with pytest.raises(ConfigError, match="ell_bounds"):
-        vflpc_params(_table({"compensation": {"ell_bounds": [30.0, 0.3]}}), "ground")
+        vflpc_params(_table({"compensation": {"ell_bounds": [10.0, 0.3]}}), "ground")
     with pytest.raises(ConfigError, match="sf2_bounds"):
         vflpc_params(_table({"compensation": {"sf2_bounds": [0.0, 0.1]}}), "ground")
