@@ -9,6 +9,7 @@ import time
 import numpy as np
 
 from loopback import zenoh_peer
+from vflpcd.base.paths import config_dir
 from vflpcd.config.scenarios import line_scenario_toml
 from vflpcd.app.drill import Drill
 from vflpcd.log.reader import read_flight_log
@@ -35,9 +36,13 @@ def assert_failsafe(result, kind, code=3):
     return events[0]
 
 
-def test_a_plan_the_car_cannot_drive_stops_it(mission_file):
-    # nine posts in a walled corridor: the guidance's plan turns tighter than the steering can
-    result = run_mission(load_mission(mission_file(route="safety/dense_corridor", rate_hz=RATE, hold=0.5)))
+def test_a_plan_the_car_cannot_drive_stops_it(mission_file, tmp_path):
+    # nine posts in a walled corridor: the guidance's plan turns tighter than the steering can, and
+    # with the recovery margins set to the full ones no recovery replan is tried
+    corridor = (config_dir() / "scenarios" / "safety" / "dense_corridor.toml").read_text()
+    (tmp_path / "corridor.toml").write_text(corridor + "\n[guidance]\nrecovery_margin = 0.5\n"
+                                            "recovery_reactive_margin = 1.5\n")
+    result = run_mission(load_mission(mission_file(route="corridor.toml", rate_hz=RATE, hold=0.5)))
     event = assert_failsafe(result, "undrivable_plan")
     assert "beyond the steering limit 0.174 1/m" in event.detail["reason"]
     assert "no valid plan for 2.0 s" in event.detail["reason"]
