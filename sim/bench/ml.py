@@ -4,7 +4,8 @@
 seed: VF-LPC without the online GP (w/o ML: the offline Koopman model alone) and with it (w/ ML,
 ``vflpc_ml``). Per run: the RMS lateral error of lap 2 (the laps split where the distance driven
 reaches the track's length), J_MC, J_Con, the longitudinal jerk p99 / max, the GP refits, and
-the seconds in which the applied a_x touched both of its limits (chatter). Prints one row per run
+the seconds in which the applied a_x touched both of its limits (chatter), and the lap-2 mean lateral
+error in left and in right curves (the steady offset a model mismatch leaves). Prints one row per run
 and the means; writes ``bench_ml.json`` and ``bench_ml.png`` (lateral error over time, both runs,
 as in the paper's figure).
 """
@@ -24,6 +25,7 @@ from vflpcd.controllers import make_controller
 from vflpcd.controllers.vflpc import limits_for
 
 CONTROLLERS = (("w/o ML", "vflpc"), ("w/ ML", "vflpc_ml"))
+CURVE_KAPPA = 0.02  # 1/m: a route curvature beyond this counts as a curve (tightest: 1/18 m)
 
 
 def lap_two(record, length: float) -> np.ndarray:
@@ -41,6 +43,17 @@ def chatter_seconds(t: np.ndarray, a_x: np.ndarray, a_min: float, a_max: float) 
     return int(sum(np.any(low[sec == s]) and np.any(high[sec == s]) for s in np.unique(sec)))
 
 
+def curve_offsets(scenario, record, steps: np.ndarray, kappa_min: float = CURVE_KAPPA) -> tuple[float, float]:
+    """Mean signed lateral error (m) over ``steps`` where the route bends left (curvature at the
+    body's projection above kappa_min) and where it bends right (below -kappa_min): the steady
+    offset in curves that a model mismatch leaves (NaN where the steps hold no such curve)."""
+    path = scenario.path
+    kappa = np.array([path.curvature_at(path.project(p).s) for p in record.position[steps]]).reshape(-1)
+    e = record.lateral[steps]
+    left, right = e[kappa > kappa_min], e[kappa < -kappa_min]
+    return (float(left.mean()) if left.size else float("nan"), float(right.mean()) if right.size else float("nan"))
+
+
 def run_one(scenario, name: str, label: str, seed: int) -> dict:
     controller = make_controller(name, scenario)
     record = run_closed_loop(scenario, controller, seed=seed)
@@ -51,10 +64,12 @@ def run_one(scenario, name: str, label: str, seed: int) -> dict:
     applied = record.applied[:, a]
     fin = np.isfinite(applied)
     lim = limits_for(scenario, scenario.control_period)
+    left, right = curve_offsets(scenario, record, lap2) if lap2.size else (None, None)
     return {"label": label, "controller": name, "seed": seed, "outcome": m["outcome"],
             "rms_lateral_lap2": float(np.sqrt(np.mean(record.lateral[lap2][ok] ** 2))) if ok.any() else None,
             "J_MC": m["J_MC"], "J_Con": m["J_Con"], "jerk_p99": m["jerk_p99"], "jerk_max": m["jerk_max"],
             "refits": controller.status().refits, "collisions": m["collisions"],
+            "offset_left": left, "offset_right": right,
             "chatter_s": chatter_seconds(record.t[fin], applied[fin], float(lim.u_min[a]), float(lim.u_max[a])),
             "t": record.t.tolist(), "lateral": record.lateral.tolist()}
 
@@ -66,7 +81,7 @@ def bench_ml(out: Path, seeds: int = 5, laps: int = 2) -> dict:
     scenario = replace(base, params="exact", process_noise=True, laps=laps,
                        t_max=laps * base.path.length / base.v_desired + 30.0)
     head = (f"{'run':<8} {'seed':>4} {'outcome':<10} {'RMS lat lap2 m':>14} {'J_MC':>7} {'J_Con':>7} "
-            f"{'jerk p99':>8} {'jerk max':>8} {'refits':>6} {'chatter s':>9}")
+            f"{'jerk p99':>8} {'jerk max':>8} {'refits':>6} {'chatter s':>9} {'offset L/R m':>13}")
     print(head + "\n" + "-" * len(head), flush=True)
     runs = []
     for seed in range(seeds):
@@ -75,12 +90,13 @@ def bench_ml(out: Path, seeds: int = 5, laps: int = 2) -> dict:
             runs.append(r)
             print(f"{label:<8} {seed:>4} {r['outcome']:<10} {_f(r['rms_lateral_lap2'], 4):>14} {_f(r['J_MC'], 4):>7} "
                   f"{_f(r['J_Con'], 4):>7} {_f(r['jerk_p99'], 2):>8} {_f(r['jerk_max'], 2):>8} {r['refits']:>6} "
-                  f"{r['chatter_s']:>9}", flush=True)
+                  f"{r['chatter_s']:>9} {_f(r['offset_left'], 3):>6}/{_f(r['offset_right'], 3):<6}", flush=True)
     summary = {}
     for label, _ in CONTROLLERS:
         mine = [r for r in runs if r["label"] == label]
         summary[label] = {k: float(np.mean([r[k] for r in mine if r[k] is not None]))
-                          for k in ("rms_lateral_lap2", "J_MC", "J_Con", "jerk_p99", "jerk_max", "refits", "chatter_s")}
+                          for k in ("rms_lateral_lap2", "J_MC", "J_Con", "jerk_p99", "jerk_max", "refits", "chatter_s",
+                                    "offset_left", "offset_right")}
     wo, w = summary["w/o ML"], summary["w/ ML"]
     better = sum(b["rms_lateral_lap2"] < a["rms_lateral_lap2"] for a, b in
                  zip([r for r in runs if r["label"] == "w/o ML"], [r for r in runs if r["label"] == "w/ ML"]))
@@ -89,7 +105,8 @@ def bench_ml(out: Path, seeds: int = 5, laps: int = 2) -> dict:
         s = summary[label]
         print(f"  {label:<7} RMS lat lap 2 {s['rms_lateral_lap2']:.4f} m, J_MC {s['J_MC']:.4f}, J_Con {s['J_Con']:.4f}, "
               f"jerk p99/max {s['jerk_p99']:.2f}/{s['jerk_max']:.2f} m/s^3, refits {s['refits']:.1f}, "
-              f"chatter {s['chatter_s']:.1f} s")
+              f"chatter {s['chatter_s']:.1f} s, lap-2 offset in left/right curves {s['offset_left']:+.3f}/"
+              f"{s['offset_right']:+.3f} m")
     change = 1.0 - w["rms_lateral_lap2"] / wo["rms_lateral_lap2"]
     print(f"  w/ ML against w/o ML: lap-2 RMS lateral {abs(change) * 100:.1f} % {'lower' if change > 0 else 'higher'}, "
           f"lower in {better}/{seeds} seeds; J_Con {(w['J_Con'] / wo['J_Con'] - 1.0) * 100:+.1f} %")
