@@ -14,6 +14,17 @@ from vflpcd.core.shapes import top_view
 
 
 
+def save_png(fig, out: str | Path, dpi: int) -> Path:
+    """Write the matplotlib figure to ``out`` (its folder made if missing), close it, return the path."""
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+    return out
+
+
 def plot_run(record: RunRecord, scenario: Scenario, out: str | Path) -> Path:
     """Write the run's figure to ``out`` (PNG) and return its path."""
     import matplotlib
@@ -61,9 +72,7 @@ def plot_run(record: RunRecord, scenario: Scenario, out: str | Path) -> Path:
     m = record.metrics
     fig.suptitle(f"{scenario.name} / {record.controller} (seed {record.seed}): {record.outcome}, "
                  f"J_MC {m['J_MC']:.3f}, L_p {m['L_p']:.1f} m, collisions {m['collisions']}")
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_png(fig, out, 110)
 
 
 def _draw_map(ax, record: RunRecord, scenario: Scenario) -> None:

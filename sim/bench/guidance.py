@@ -24,6 +24,7 @@ from vflpcd.core.obstacle_world import ObstacleWorld
 from vflpcd.config.scenarios import Scenario
 from vflpcd.core.guidance.planner import GuidancePlanner, Prepared
 from vflpcd.core.guidance.speed import menger_curvature
+from sim.plot import save_png
 
 
 @dataclass
@@ -139,9 +140,7 @@ def plot(scenario: Scenario, rows: list[PlannerRow], prepared: Prepared, out: Pa
            title=f"{scenario.name}: planned paths (obstacles grey; reactive boundaries black, repulsive red, "
                  "virtual blue)")
     ax.legend(loc="upper left", fontsize=8)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_png(fig, out, 110)
 
 
 def bench_guidance(scenario: Scenario, out: Path, repeat: int = 20, astar_repeat: int = 3,

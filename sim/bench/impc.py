@@ -29,6 +29,7 @@ import numpy as np
 from vflpcd.controllers import make_controller
 from sim.runner import RunRecord, run_closed_loop
 from vflpcd.config.scenarios import Scenario, load_scenario
+from sim.plot import save_png
 
 NOMINAL = ("vflpc", "nmpc_cbf", "koopman_mpc", "pure_pursuit")
 EXACT = ("vflpc", "vflpc_ml")
@@ -153,10 +154,7 @@ def plot(nominal: list[Run], exact: list[Run], aerial: list[Run], scenario: Scen
     ax.set(xlabel="t (s)", ylabel="lateral error to the path (m)", title="exact (mismatched) vehicle")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_png(fig, out, 110)
 
 
 def bench_impc(out: Path, scenario: str = "carsim_avoidance", aerial: str = "uav_3d") -> dict:

@@ -23,6 +23,7 @@ from sim.runner import run_closed_loop
 from vflpcd.config.scenarios import load_scenario
 from vflpcd.controllers import make_controller
 from vflpcd.controllers.vflpc import limits_for
+from sim.plot import save_png
 
 CONTROLLERS = (("w/o ML", "vflpc"), ("w/ ML", "vflpc_ml"))
 CURVE_KAPPA = 0.02  # 1/m: a route curvature beyond this counts as a curve (tightest: 1/18 m)
@@ -134,9 +135,7 @@ def plot(runs: list[dict], path: Path) -> Path:
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, 120)
 
 
 def _f(v, digits: int) -> str:

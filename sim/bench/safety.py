@@ -29,6 +29,7 @@ from sim.runner import RunRecord, run_closed_loop
 from vflpcd.config.scenarios import Scenario, load_scenario
 from vflpcd.core.safety.guard import REST_SPEED
 from vflpcd.base.paths import config_dir
+from sim.plot import save_png
 
 SCENES = ("wall_across", "narrow_turn", "pedestrian_close", "tight_gap", "dense_corridor")
 UNAVOIDABLE = ("pedestrian_close",)
@@ -109,10 +110,7 @@ def plot(rows: list[dict], scenes: dict[str, Scenario], out: Path) -> Path:
         ax.set(title=name, xlabel="X (m)", ylabel="Y (m)")
         ax.legend(fontsize=7, loc="upper left", ncol=2)
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
-    plt.close(fig)
-    return out
+    return save_png(fig, out, 100)
 
 
 def bench_safety(out: Path, scenes: tuple[str, ...] = SCENES, controllers: tuple[str, ...] = CONTROLLERS) -> dict:

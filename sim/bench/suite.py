@@ -26,6 +26,7 @@ import numpy as np
 from sim.bench.impc import LABELS, _fmt, run_one
 from vflpcd.base.paths import config_dir
 from vflpcd.config.scenarios import Scenario, load_scenario
+from sim.plot import save_png
 
 CONTROLLERS = ("vflpc", "nmpc_cbf", "koopman_mpc", "pure_pursuit")
 PEAK_MARGIN = 1.0        # m: VF-LPC's peak lateral error may exceed the NMPC's by this much
@@ -148,10 +149,7 @@ def plot(rows: list[dict], paths: dict, scenes: dict[str, Scenario], controllers
         ax.set_title(n, fontsize=9)
         ax.tick_params(labelsize=7)
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=90)
-    plt.close(fig)
-    return out
+    return save_png(fig, out, 90)
 
 
 def bench_suite(out: Path, controllers: tuple[str, ...] = CONTROLLERS, only: tuple[str, ...] | None = None) -> dict:

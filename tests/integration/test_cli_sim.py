@@ -9,6 +9,13 @@ from pathlib import Path
 VFLPCD = [sys.executable, "-m", "vflpcd.app.cli"]
 
 
+def refused(args: list[str]) -> list[str]:
+    """Run ``vflpcd args``, which must exit 2 with nothing on stdout; its stderr lines."""
+    proc = subprocess.run(VFLPCD + args, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and proc.stdout == "", proc.stderr
+    return proc.stderr.strip().splitlines()
+
+
 def test_sim_carsim_avoidance_pure_pursuit_stops_behind_the_supervisor(tmp_path):
     # pure pursuit does not avoid anything: the supervisor stops it in front of the parked car
     out = tmp_path / "run"
@@ -138,10 +145,7 @@ def test_bench_safety_runs_a_scene_with_and_without_the_supervisor_and_writes_js
 
 
 def test_bench_safety_refuses_an_unknown_scene_in_one_line(tmp_path):
-    proc = subprocess.run(VFLPCD + ["bench", "safety", "--scene", "nope", "--out", str(tmp_path)],
-                          capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 2
-    assert proc.stderr.strip().splitlines() == [
+    assert refused(["bench", "safety", "--scene", "nope", "--out", str(tmp_path)]) == [
         "vflpcd: error: command line: --scene: no such scene 'nope' (have: wall_across, narrow_turn, "
         "pedestrian_close, tight_gap, dense_corridor)"]
 
@@ -161,10 +165,7 @@ def test_bench_ml_runs_both_models_on_the_exact_vehicle_and_writes_json_and_png(
 
 
 def test_bench_ml_refuses_a_single_lap_in_one_line(tmp_path):
-    proc = subprocess.run(VFLPCD + ["bench", "ml", "--laps", "1", "--out", str(tmp_path)],
-                          capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 2
-    assert proc.stderr.strip().splitlines() == [
+    assert refused(["bench", "ml", "--laps", "1", "--out", str(tmp_path)]) == [
         "vflpcd: error: command line: --seeds/--laps: expected at least one seed and two laps (lap 2 is measured)"]
 
 
@@ -188,16 +189,10 @@ def test_bench_suite_runs_one_scene_with_pure_pursuit_and_writes_json_and_png(tm
 
 
 def test_bench_suite_refuses_an_unknown_scene_and_controller_in_one_line(tmp_path):
-    proc = subprocess.run(VFLPCD + ["bench", "suite", "--only", "oncoming_car", "nope", "--out", str(tmp_path)],
-                          capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 2 and proc.stdout == ""
-    (line,) = proc.stderr.strip().splitlines()
+    (line,) = refused(["bench", "suite", "--only", "oncoming_car", "nope", "--out", str(tmp_path)])
     assert line.startswith("vflpcd: error: command line: --only: no such suite scenario 'nope' (have: ")
     assert "slalom_cones" in line
-    proc = subprocess.run(VFLPCD + ["bench", "suite", "--controllers", "vflpc,pd_tracker", "--out", str(tmp_path)],
-                          capture_output=True, text=True, timeout=60)
-    assert proc.returncode == 2
-    (line,) = proc.stderr.strip().splitlines()
+    (line,) = refused(["bench", "suite", "--controllers", "vflpc,pd_tracker", "--out", str(tmp_path)])
     assert line.startswith("vflpcd: error: command line: --controllers: expected ground controllers") \
         and "'pd_tracker'" in line
     assert not (tmp_path / "bench_suite.json").exists()

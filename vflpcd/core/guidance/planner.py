@@ -42,6 +42,7 @@ from vflpcd.core.guidance.speed import plan_speed, smooth_path, step_times
 from vflpcd.core.guidance.trajectory import Trajectory, timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath, nearest_on_polyline
+from vflpcd.core.safety.monitors import PlanLimits, check_plan
 
 VIRTUAL_LEAD = np.radians(30.0)  # heading change the virtual obstacle gives before R_actl
 # m/s across the path: a mover crossing faster (a cyclist, a car) is passed behind, on the side it
@@ -54,6 +55,7 @@ FOLLOW_SPEEDS = (0.8, 0.6, 0.45, 0.3, 0.2, 0.1)  # of v_desired: slower speed pl
 # of the level |c_i|: the movers placed by MOVER_PASSES at the last pass's times leave grazes of
 # about 0.04 |c_i| (carsim_avoidance's overtake), and a plan that passes should not be made to follow.
 FOLLOW_SLACK = 0.25
+DRIVABLE_ROUNDING = 1e-9  # relative: the speed plan meets v^2 kappa = a_lat_max up to rounding
 MOVER_PASSES = 3  # re-integrations with moving obstacles placed at the previous pass's arrival times
 
 
@@ -110,8 +112,9 @@ class PlannerBase:
         self.kappa_max = params.curvature_use * kappa_limit
 
     def drivable(self, plan: "GuidancePlan") -> bool:
-        """Whether the plan's curvature stays within the robot's geometric limit (``kappa_limit``)."""
-        return bool(np.all(np.isfinite(plan.kappa)) and np.max(np.abs(plan.kappa), initial=0.0) <= self.kappa_limit)
+        """Whether the plan keeps the robot's curvature limit (``kappa_limit``) and its lateral
+        acceleration: the safety monitors' ``check_plan``, without their tolerance."""
+        return check_plan(plan.kappa, plan.v, PlanLimits(self.kappa_limit, self.a_lat_max), DRIVABLE_ROUNDING) is None
 
     def recovery(self) -> "PlannerBase | None":
         """The same planner with the clearance beyond the body radius taken down to ``recovery_margin``
@@ -201,17 +204,21 @@ class PlannerBase:
         from v_robot. None when the re-timed plan would meet a moving obstacle's repulsive region (when
         overtaking, arriving later means merging back closer to the car overtaken). A plan with
         fewer than three points ahead of the robot is returned as it is."""
-        p = self.params
         k = nearest_on_polyline(np.asarray(robot, float), plan.xy)[1]
         pts = plan.xy[k + 1:]
         if len(pts) < 3:
             return plan
-        s, kappa, v = plan_speed(pts, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, max(float(v_robot), 0.0),
-                                 v_end=0.0 if plan.v[-1] <= 1e-9 else None)
-        trajectory = timed_trajectory(pts, s, v, t_now, self.dt)
+        s, kappa, v, trajectory = self.timed(pts, self.v_desired, max(float(v_robot), 0.0), t_now, _stops(plan.v))
         if self.meets_mover(plan.field.movers, trajectory):
             return None
         return replace(plan, trajectory=trajectory, xy=pts, s=s, kappa=kappa, v=v)
+
+    def timed(self, xy: np.ndarray, v_max: float, v0: float, t0: float, at_rest: bool):
+        """The path xy speed-planned up to v_max from v0 (ending at rest with ``at_rest``) and timed
+        from t0: (s, kappa, v, trajectory)."""
+        p = self.params
+        s, kappa, v = plan_speed(xy, v_max, self.a_lat_max, p.a_accel, p.a_decel, v0, v_end=0.0 if at_rest else None)
+        return s, kappa, v, timed_trajectory(xy, s, v, t0, self.dt)
 
     def meets_mover(self, movers, trajectory: Trajectory, slack: float = 0.0) -> bool:
         """Whether the timed trajectory enters a moving obstacle's repulsive region (terms ``movers``)
@@ -219,18 +226,21 @@ class PlannerBase:
         return any(np.any(self._values(m.implicit, trajectory.pos, trajectory.t) <= (1.0 + slack) * m.implicit.c)
                    for m in movers)
 
-    def followed(self, movers, xy: np.ndarray, t0: float, v0: float, v_end: float | None):
+    def followed(self, movers, xy: np.ndarray, t0: float, v0: float, at_rest: bool):
         """The path xy speed-planned slower (``FOLLOW_SPEEDS`` of v_desired, fastest first) until its
         trajectory from t0 at v0 meets no mover: a slow car ahead that the path cannot pass is
         followed. (s, kappa, v, trajectory), or None when no such speed exists (a mover coming the
         other way)."""
-        p = self.params
         for f in FOLLOW_SPEEDS:
-            s, kappa, v = plan_speed(xy, f * self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0, v_end=v_end)
-            trajectory = timed_trajectory(xy, s, v, t0, self.dt)
-            if not self.meets_mover(movers, trajectory):
-                return s, kappa, v, trajectory
+            slower = self.timed(xy, f * self.v_desired, v0, t0, at_rest)
+            if not self.meets_mover(movers, slower[3]):
+                return slower
         return None
+
+
+def _stops(v: np.ndarray) -> bool:
+    """Whether the speed plan v (K,) stops at its end (the goal)."""
+    return bool(v[-1] <= 1e-9)
 
 
 def _at_stamp(o: ObstacleImplicit, pts: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -385,7 +395,7 @@ class GuidancePlanner(PlannerBase):
                                                             step_times(s, v, t0, self.params.beta))
         trajectory = timed_trajectory(xy, s, v, t0, self.dt)
         if field.movers and self.meets_mover(field.movers, trajectory, FOLLOW_SLACK):
-            slower = self.followed(field.movers, xy, t0, v0, 0.0 if prepared.ends_path and res.reached else None)
+            slower = self.followed(field.movers, xy, t0, v0, _stops(v))
             if slower is not None:
                 s, kappa, v, trajectory = slower
         return GuidancePlan(trajectory=trajectory, xy=xy, s=s, kappa=kappa, v=v, raw=res.xy,

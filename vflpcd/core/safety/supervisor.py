@@ -17,9 +17,9 @@ The applied steering angle is not measured: it is tracked from the commands sent
 actuator's rate limit. A command also passes when the stop that straightens the steering at its
 rate limit keeps the margin (a car steering back towards its lane beside an obstacle). Body:
 covering discs (``Footprint``). Emergency: a_x = a_min, with the steering held or straightened,
-whichever keeps further off; when that can no longer stop the car short of contact, a_x = a_min with the steering (held, the
-controller's, or full lock either way) whose prediction, the steering moving on at its rate limit
-through the stop, meets the obstacle at the lowest speed (or not at all).
+whichever keeps further off; when that can no longer stop the car short of contact, a_x = a_min
+with the steering (held, the controller's, or full lock either way) whose prediction, the steering
+moving on at its rate limit through the stop, meets the obstacle at the lowest speed (or not at all).
 
 Quadrotor (state [X, Y, Z, vx, vy, vz, ...]; command the world acceleration, gravity excluded).
 Prediction: the clipped command for the reaction time, then a straight stop at ``decel_factor``
@@ -184,8 +184,8 @@ class Supervisor:
 
     def _alternative_stops(self, state: np.ndarray, u: np.ndarray) -> list:
         """Other stops after "u for the reaction time" that the emergency manoeuvre can take (poses,
-        yaws, times as ``_poses``): the better of them and the plain stop judges a command. None by
-        default."""
+        yaws, times as ``_poses``): the better of them and the plain stop judges a command. There
+        are none by default."""
         return []
 
     def _memo_key(self, state: np.ndarray, u: np.ndarray, obstacles: Sequence[ObstacleState]) -> tuple | None:
@@ -467,21 +467,24 @@ class GroundSupervisor(Supervisor):
 
     def _override(self, state: np.ndarray, u: np.ndarray | None, obstacles: Sequence[ObstacleState],
                   t: float) -> np.ndarray:
-        """Strongest braking with the steering held, unless that can no longer stop the car short of
-        contact: then strongest braking with the steering (held, the controller's when there is a
-        command u, or full lock either way, reached at the rate limit) whose prediction meets the
-        obstacle slowest (or not at all)."""
+        """Strongest braking with the steering held or straightened, whichever keeps further off,
+        unless that can no longer stop the car short of contact: then strongest braking with the
+        steering (that one, the controller's when there is a command u, or full lock either way,
+        reached at the rate limit) whose prediction meets the obstacle slowest (or not at all)."""
         brake = self._brake_command(state)
-        if obstacles:
-            straight = np.array([self.limits.a_min, 0.0])
-            if self.predicted_clearance(state, straight, obstacles, t)[0] > self.predicted_clearance(
-                    state, brake, obstacles, t)[0]:
-                brake = straight        # the stop that straightens keeps further off (``_alternative_stops``)
-        if obstacles and self.predicted_clearance(state, brake, obstacles, t)[0] < 0.0:
+        if not obstacles:
+            return brake
+        lim = self.limits
+        clear = self.predicted_clearance(state, brake, obstacles, t)[0]
+        straight = np.array([lim.a_min, 0.0])
+        straight_clear = self.predicted_clearance(state, straight, obstacles, t)[0]
+        if straight_clear > clear:      # the stop that straightens keeps further off (``_alternative_stops``)
+            brake, clear = straight, straight_clear
+        if clear < 0.0:
             arrays = ObstacleArrays.of(obstacles, self.DIM)
-            lim = self.limits
             best, harm = brake, self._impact(state, brake, arrays, t)
-            for steer in ((lim.delta_max, -lim.delta_max) if u is None else (float(u[1]), lim.delta_max, -lim.delta_max)):
+            steers = (lim.delta_max, -lim.delta_max) if u is None else (float(u[1]), lim.delta_max, -lim.delta_max)
+            for steer in steers:
                 candidate = np.array([lim.a_min, steer])
                 h = self._impact(state, candidate, arrays, t)
                 if h < harm - 1e-3:

@@ -15,7 +15,7 @@ from vflpcd.controllers.vflpc import load_params, make_vflpc, make_vflpc_ml
 from vflpcd.core.guidance.planner import PlannerBase
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.shapes import Circle
-from vflpcd.core.vflpc import plan_job
+from vflpcd.core.vflpc import _plan_once, plan_job
 from sim.plants import make_plant
 from vflpcd.base.paths import config_dir
 from vflpcd.base.tomlread import load_toml
@@ -122,8 +122,11 @@ def test_margins_scale_with_speed_and_the_obstacles_motion(straight):
 def test_an_undrivable_plan_is_planned_again_with_narrow_margins(straight, monkeypatch):
     ctrl = make_vflpc(straight)
     x0 = make_plant(straight, 0).state
-    ctrl.step(x0, 0.0, [])
+    barrel = ObstacleState("barrel", Circle(0.6), np.array([30.0, 0.5]), 0.0, np.zeros(2), 0.0)
+    ctrl.step(x0, 0.0, [barrel])
     job = ctrl._fresh_job(0.0)
+    full, narrow = _plan_once(ctrl.planner, job).plan, _plan_once(ctrl.planner.recovery(), job).plan
+    assert np.abs(full.xy[:, 1]).max() > np.abs(narrow.xy[:, 1]).max() + 0.1      # the narrow one swings out less
     seen = []
 
     def drivable(self, plan):
@@ -133,9 +136,9 @@ def test_an_undrivable_plan_is_planned_again_with_narrow_margins(straight, monke
     monkeypatch.setattr(PlannerBase, "drivable", drivable)
     result = plan_job(ctrl.planner, job)
     assert seen == [ctrl.planner.params.safety_margin, ctrl.planner.params.recovery_margin]
-    assert result.plan is not None
+    np.testing.assert_array_equal(result.plan.xy, narrow.xy)                   # the recovery plan is taken
     monkeypatch.setattr(PlannerBase, "drivable", lambda self, plan: False)      # neither is: the first stands
-    assert plan_job(ctrl.planner, job).plan is not None
+    np.testing.assert_array_equal(plan_job(ctrl.planner, job).plan.xy, full.xy)
 
 
 def test_the_refits_hyperparameter_bounds_come_from_the_config(straight):

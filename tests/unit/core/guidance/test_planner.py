@@ -263,9 +263,9 @@ def test_a_plan_into_a_slow_car_it_cannot_pass_is_slowed_to_follow_it(params):
     lead = [mover(20.0, 3.0)]
     s, kappa, v = plan_speed(xy, 7.0, 3.0, params.a_accel, params.a_decel, 7.0)
     assert planner.meets_mover(lead, timed_trajectory(xy, s, v, 0.0, 0.05), FOLLOW_SLACK)
-    s, kappa, v, trajectory = planner.followed(lead, xy, 0.0, 7.0, None)
+    s, kappa, v, trajectory = planner.followed(lead, xy, 0.0, 7.0, False)
     assert not planner.meets_mover(lead, trajectory) and v.max() <= 7.0 and v[-1] < 3.5
-    assert planner.followed([mover(60.0, -7.0)], xy, 0.0, 7.0, None) is None
+    assert planner.followed([mover(60.0, -7.0)], xy, 0.0, 7.0, False) is None
 
 
 def test_a_graze_of_a_movers_region_is_not_a_conflict_to_follow(params):
