@@ -18,6 +18,7 @@ CONTROLLERS: dict[str, tuple[str, tuple[str, ...]]] = {
     "vflpc_ml": ("vflpcd.controllers.vflpc:make_vflpc_ml", ("ground",)),
     "koopman_mpc": ("vflpcd.controllers.koopman_mpc:make_koopman_mpc", ("ground", "aerial")),
     "nmpc_cbf": ("vflpcd.controllers.nmpc_cbf:make_nmpc_cbf", ("ground",)),
+    "nmpc_rti": ("vflpcd.controllers.nmpc_rti:make_nmpc_rti", ("ground",)),
     "pure_pursuit": ("vflpcd.controllers.pure_pursuit:make_pure_pursuit", ("ground",)),
     "pd_tracker": ("vflpcd.controllers.pd_tracker:make_pd_tracker", ("aerial",)),
 }

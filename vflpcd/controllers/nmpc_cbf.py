@@ -331,12 +331,6 @@ class NmpcCbf(ControllerBase):
         w = ca.vertcat(ca.vec(X), ca.vec(U), ca.vec(Sl))
         p = ca.vertcat(P_x0, ca.vec(P_xr), ca.vec(P_ur), P_dprev, ca.vec(P_c), P_r, P_a)
         nlp = {"x": w, "p": p, "f": J, "g": ca.vertcat(*g)}
-        opts = {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes",
-                "ipopt.max_iter": cfg.max_iter, "ipopt.tol": cfg.tol, "ipopt.acceptable_tol": cfg.acceptable_tol}
-        if cfg.warm_start_duals:
-            opts.update({"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-6,
-                         "ipopt.warm_start_mult_bound_push": 1e-6, "ipopt.mu_init": 1e-4})
-        self._solver = ca.nlpsol("nmpc_cbf", "ipopt", nlp, opts)
         self._lbg, self._ubg = np.array(lbg, float), np.array(ubg, float)
         nX, nU = 6 * (N + 1), 2 * N
         self._nX, self._nU = nX, nU
@@ -348,6 +342,30 @@ class NmpcCbf(ControllerBase):
         ubx[nX:nX + nU] = np.tile(self.u_max, N)
         lbx[nX + nU:] = 0.0
         self._lbx, self._ubx = lbx, ubx
+        self._solver = self._make_solver(nlp)
+
+    def _make_solver(self, nlp: dict):
+        """The NLP solver: IPOPT to convergence (``[ipopt]`` of the config)."""
+        cfg = self.config
+        opts = {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes",
+                "ipopt.max_iter": cfg.max_iter, "ipopt.tol": cfg.tol, "ipopt.acceptable_tol": cfg.acceptable_tol}
+        if cfg.warm_start_duals:
+            opts.update({"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-6,
+                         "ipopt.warm_start_mult_bound_push": 1e-6, "ipopt.mu_init": 1e-4})
+        return ca.nlpsol("nmpc_cbf", "ipopt", nlp, opts)
+
+    def _solve(self, args: dict) -> tuple[bool, str, dict | None]:
+        """One call of the solver: (usable, status, solution); usable = IPOPT succeeded with a
+        finite solution."""
+        sol = self._solver(**args)
+        status = str(self._solver.stats().get("return_status", "?"))
+        ok = bool(self._solver.stats().get("success", False)) and bool(np.all(np.isfinite(np.asarray(sol["x"], float))))
+        return ok, status, sol
+
+    @property
+    def warm_duals(self) -> bool:
+        """Whether the previous solution's multipliers warm-start the next solve."""
+        return self.config.warm_start_duals
 
     # ------------------------------------------------------------------ protocol
     def reset(self) -> None:
@@ -378,14 +396,11 @@ class NmpcCbf(ControllerBase):
                             centres.transpose(1, 0, 2).ravel(), radii, active])
         w0 = self._initial_guess(x0, xr, ur)
         args = {"x0": w0, "p": p, "lbx": self._lbx, "ubx": self._ubx, "lbg": self._lbg, "ubg": self._ubg}
-        if self.config.warm_start_duals and self._lam_g is not None and self._since_solve == 0:
+        if self.warm_duals and self._lam_g is not None and self._since_solve == 0:
             args["lam_x0"], args["lam_g0"] = self._lam_x, self._lam_g
         try:
-            sol = self._solver(**args)
-            stats = self._solver.stats()
-            self.last_status = str(stats.get("return_status", "?"))
-            ok = bool(stats.get("success", False)) and np.all(np.isfinite(np.asarray(sol["x"], float)))
-            reason = self.last_status
+            ok, reason, sol = self._solve(args)
+            self.last_status = reason
         except Exception as exc:  # noqa: BLE001 - any solver error falls back to the plan
             ok, reason, sol = False, f"{type(exc).__name__}: {exc}", None
             self.last_status = reason
@@ -401,7 +416,7 @@ class NmpcCbf(ControllerBase):
             self.failures += 1
             self._since_solve += 1
             u = self._fallback()
-            log.warning("nmpc_cbf: solver failed at t=%.2f s (%s); using %s [%.2f, %.3f]", t, reason,
+            log.warning("%s: solver failed at t=%.2f s (%s); using %s [%.2f, %.3f]", self.name, t, reason,
                         "the shifted plan" if self._w is not None and self._since_solve < N else "braking",
                         u[0], u[1])
         u = self._limit(u)

@@ -33,7 +33,7 @@ out the due replan as a picklable ``ReplanJob``, ``plan_job(planner, job)`` runs
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Protocol, Sequence
 
 import numpy as np
@@ -57,9 +57,7 @@ log = logging.getLogger("vflpcd.core.vflpc")
 @dataclass(frozen=True)
 class ReplanJob:
     """A due guidance replan: path arc length s of the robot, its position pos (d,), velocity
-    vel (d,), heading (rad, 2-D only) at time t, and the obstacles it was due for. A replan that
-    continues the reference starts from the reference's point, velocity and heading instead, and
-    ``robot`` keeps the robot's (pos, vel, heading) to plan from if no plan starts there."""
+    vel (d,), heading (rad, 2-D only) at time t, and the obstacles it was due for."""
 
     s: float
     pos: np.ndarray
@@ -67,12 +65,6 @@ class ReplanJob:
     heading: float | None
     t: float
     obstacles: tuple[ObstacleState, ...]
-    robot: tuple | None = None
-
-    def from_robot(self) -> "ReplanJob":
-        """The same replan planned from the robot's own state."""
-        return self if self.robot is None else replace(self, pos=self.robot[0], vel=self.robot[1],
-                                                       heading=self.robot[2], robot=None)
 
 
 @dataclass(frozen=True)
@@ -87,15 +79,8 @@ def plan_job(planner, job: ReplanJob) -> PlanResult:
     """Run a replan (worker side; raises GuidanceError when no plan exists). A plan beyond the
     robot's curvature limit is planned again by the planner's ``recovery`` (narrower margins); the
     recovery plan is taken when it is drivable, else the first plan stands (and the safety gate
-    refuses it). A replan that continues the reference and finds no plan from there (a new
-    obstacle covers the reference's point) is planned from the robot."""
-    try:
-        result = _plan_once(planner, job)
-    except GuidanceError:
-        if job.robot is None:
-            raise
-        job = job.from_robot()
-        result = _plan_once(planner, job)
+    refuses it)."""
+    result = _plan_once(planner, job)
     if planner.drivable(result.plan):
         return result
     narrow = planner.recovery()
@@ -355,29 +340,6 @@ class VFLPC(ControllerBase):
         if self._last_inputs is None:
             return None
         pos, vel, heading, obstacles = self._last_inputs
-        return self._job(pos, vel, heading, t, obstacles)
-
-    def _job(self, pos, vel, heading, t: float, obstacles) -> ReplanJob:
-        """A replan at time t that continues the reference being followed: it starts from the
-        reference's point, velocity and heading at t when the robot is within ``join_tolerance`` of
-        that point, so position, heading and speed join there and the horizon sees no step when
-        the plan is installed (a plan from the robot would fold its tracking error into the
-        reference and reset the timing); from the robot's own state otherwise (no plan yet, or the
-        robot is off its reference: braked, pushed, or after a stop)."""
-        plan = self._plan
-        if plan is not None:
-            smp = plan.trajectory.sample(np.array([t, t + self.dt]))
-            p_ref = smp["pos"][0]
-            if float(np.linalg.norm(p_ref - pos)) <= self.params.join_tolerance:
-                if self.dim == 2:
-                    psi = float(smp["psi"][0])
-                    return ReplanJob(self._s, p_ref, float(smp["v"][0]) * np.array([np.cos(psi), np.sin(psi)]),
-                                     psi, t, obstacles, robot=(pos, vel, heading))
-                step = smp["pos"][1] - p_ref
-                norm = float(np.linalg.norm(step))
-                direction = step / norm if norm > 1e-9 else np.zeros(self.dim)
-                return ReplanJob(self._s, p_ref, float(smp["v"][0]) * direction, None, t, obstacles,
-                                 robot=(pos, vel, heading))
         return ReplanJob(self._s, pos, vel, heading, t, obstacles)
 
     def install_plan(self, job: ReplanJob, result: PlanResult) -> None:
@@ -497,7 +459,7 @@ class VFLPC(ControllerBase):
         if not due:
             return
         heading = float(state[self.errors.layout.heading]) if self.dim == 2 else None
-        job = self._job(pos, vel, heading, t, obstacles)
+        job = ReplanJob(self._s, pos, vel, heading, t, obstacles)
         if plan is None:
             self.install_plan(job, plan_job(self.planner, job))   # no reference yet: plan at once
         else:

@@ -67,6 +67,20 @@ class GraphPath3D:
     def progress_frame(self) -> tuple[np.ndarray, np.ndarray]:
         return self.origin, self.R[:, 0]
 
+    def straighten(self, p: np.ndarray) -> np.ndarray:
+        """World points (K, 3) -> (x', y' - f(x'), z' - g(x')): the path becomes the x' axis."""
+        q = (np.asarray(p, float) - self.origin) @ self.R
+        q[:, 1] -= self._eval(self.f, self.df, q[:, 0])[0]
+        q[:, 2] -= self._eval(self.g, self.dg, q[:, 0])[0]
+        return q
+
+    def bend(self, q: np.ndarray) -> np.ndarray:
+        """The inverse of ``straighten``: (x', offsets) (K, 3) -> world points."""
+        q = np.array(q, float)
+        q[:, 1] += self._eval(self.f, self.df, q[:, 0])[0]
+        q[:, 2] += self._eval(self.g, self.dg, q[:, 0])[0]
+        return self.origin + q @ self.R.T
+
     def progress(self, p: np.ndarray) -> np.ndarray:
         return (p - self.origin) @ self.R[:, 0]
 

@@ -142,6 +142,18 @@ class GraphPath:
         f, _ = self._f(np.asarray(x, float))
         return self.origin + np.column_stack([x, f]) @ self.R.T
 
+    def straighten(self, p: np.ndarray) -> np.ndarray:
+        """World points (K, 2) -> (x', y' - f(x')): the path becomes the x' axis."""
+        q = self.to_local(np.asarray(p, float))
+        q[:, 1] -= self._f(q[:, 0])[0]
+        return q
+
+    def bend(self, q: np.ndarray) -> np.ndarray:
+        """The inverse of ``straighten``: (x', offset) (K, 2) -> world points."""
+        q = np.array(q, float)
+        q[:, 1] += self._f(q[:, 0])[0]
+        return self.origin + q @ self.R.T
+
 
 def chord_frame(path: ReferencePath, s0: float, s1: float, spacing: float = 1.0):
     """Points of the stretch [s0, s1] every ~spacing m in the frame of its chord, turned about z:

@@ -18,7 +18,7 @@
    path's entry into R_actl (beyond the paper, whose remark 2 alone leaves a virtual obstacle
    acting on a robot that was turned past R_actl without entering it).
 4. The static part of chi_c is evaluated on a grid; eq. (xi_r) is integrated from the robot.
-5. The integrated points are smoothed (Gaussian, ``smoothing`` m); where their curvature exceeds
+5. The integrated points' offsets from the path are smoothed (Gaussian, ``smoothing`` m); where their curvature exceeds
    ``curvature_use`` times the robot's geometric limit (``kappa_limit``: tan(delta_max) / L for a
    car) they are faired (``fairing.py``); then they are speed-planned. A timed trajectory that still
    enters a mover's repulsive region (a slow car ahead that the path cannot pass beside oncoming
@@ -162,14 +162,21 @@ class PlannerBase:
                                     f"{point.round(2).tolist()} (it is inside its repulsive boundary)")
         return point
 
-    def safe_smooth(self, raw: np.ndarray, terms, t0: float, times: np.ndarray | None) -> np.ndarray:
+    def safe_smooth(self, raw: np.ndarray, terms, t0: float, times: np.ndarray | None, graph) -> np.ndarray:
         """Smooth raw (K, d) with the configured std, halving it (down to none) while the smoothed
-        points would cut into a repulsive boundary (moving obstacles at the points' times)."""
+        points would cut into a repulsive boundary (moving obstacles at the points' times).
+
+        The smoothing acts on the points' offset from the path (in the frame where the path
+        ``graph`` is straight, ``straighten``/``bend``), not on the points themselves: the integrated
+        path's kinks are smoothed, the reference path's own curvature is kept (plain Gaussian
+        smoothing cuts every bend by sigma^2 kappa / 2, and a plan that starts on the path would
+        leave it at its start, where the smoothing fades out)."""
         p = self.params
         t = self._point_times(len(raw), t0, times)
         sigma = p.smoothing / p.beta
+        straight = graph.straighten(raw)
         while True:
-            xy = smooth_path(raw, sigma) if sigma >= 0.5 else raw
+            xy = graph.bend(smooth_path(straight, sigma)) if sigma >= 0.5 else raw
             if sigma < 0.5 or all(np.all(self._values(term.implicit, xy, t) > term.implicit.c) for term in terms):
                 return xy
             sigma /= 2.0
@@ -373,7 +380,7 @@ class GuidancePlanner(PlannerBase):
                                      max_steps=int(4 * (length + 20.0) / p.beta), t0=t0,
                                      speed=max(v0, 0.5 * self.v_desired), heading=heading, step_times=steps)
         times = steps if steps is not None and len(steps) else None
-        xy = self.safe_smooth(res.xy, field.statics + field.movers, t0, times)
+        xy = self.safe_smooth(res.xy, field.statics + field.movers, t0, times, field.path)
         goal = prepared.ends_path and res.reached
         xy = self.faired(xy, field.statics + field.movers, t0, times, heading, pin_end=goal)
         s, kappa, v = plan_speed(xy, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,

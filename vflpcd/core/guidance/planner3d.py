@@ -97,7 +97,7 @@ class GuidancePlanner3D(PlannerBase):
             raw, reached, inherited, gammas = self._integrate(
                 field, start, prepared.x_end, t0, max(v0, 0.5 * self.v_desired),
                 int(4 * (prepared.s_end - prepared.s0 + 20.0) / p.beta), steps)
-            xyz = self.safe_smooth(raw, field.statics + field.movers, t0, steps)
+            xyz = self.safe_smooth(raw, field.statics + field.movers, t0, steps, field.path)
             s, kappa, v = plan_speed(xyz, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
                                      v_end=0.0 if (prepared.ends_path and reached) else None)
             steps = step_times(s, v, t0, p.beta)

@@ -10,7 +10,7 @@ from vflpcd.core.guidance.grid import FieldGrid, integrate
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.config.params import guidance_params
 from vflpcd.core.guidance.planner import FOLLOW_SLACK, GuidancePlanner
-from vflpcd.core.guidance.speed import plan_speed
+from vflpcd.core.guidance.speed import plan_speed, smooth_path
 from vflpcd.core.guidance.trajectory import timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
@@ -283,3 +283,24 @@ def test_a_graze_of_a_movers_region_is_not_a_conflict_to_follow(params):
         if planner.meets_mover([term], traj):
             break
     assert planner.meets_mover([term], traj) and not planner.meets_mover([term], traj, FOLLOW_SLACK)
+
+
+def test_smoothing_keeps_a_bend_of_the_path_and_a_plan_that_starts_on_it_stays_on_it(params):
+    """The smoothing acts on the offset from the path: on an 18 m arc with no obstacle the plan lies
+    on the path (plain Gaussian smoothing of the points cuts the bend by sigma^2 kappa / 2, 2.8 cm
+    here), also at its start, where the smoothing fades out."""
+    radius = 18.0
+    path = ReferencePath.arc([0.0, radius], radius, -np.pi / 2, np.pi / 2)
+    planner = GuidancePlanner(path, params, 6.0, 3.0, 1.0, 0.05)
+    s0 = 10.0
+    prepared = planner.prepare(s0, [])
+    plan = planner.plan(prepared, path.point_at(s0), 0.0, 6.0, heading=float(path.heading_at(s0)))
+    def offsets(xy):
+        return np.array([path.project(p, None).lateral for p in xy[::5]])
+
+    off = offsets(plan.xy)
+    assert abs(np.mean(off)) < 0.005 and np.max(np.abs(off)) < 0.02 and abs(off[0]) < 1e-9
+    cut = offsets(smooth_path(plan.raw, params.smoothing / params.beta))   # the points smoothed themselves
+    assert abs(np.mean(cut[10:-10])) > 0.8 * params.smoothing ** 2 / (2.0 * radius)
+    kappa = turn_curvature(plan.xy[5:-5])
+    assert np.all(np.abs(kappa[1:-1] - 1.0 / radius) < 0.5 / radius)
