@@ -141,7 +141,7 @@ def cmd_bench_suite(args) -> int:
                               f"expected ground controllers from {', '.join(ground)}, got {name!r}")
     import importlib.util
 
-    solver = {"nmpc_cbf": "casadi", "koopman_mpc": "osqp"}
+    solver = {"nmpc_cbf": "casadi", "nmpc_rti": "casadi", "koopman_mpc": "osqp"}
     missing = [f"{c} needs {solver[c]}" for c in controllers
                if c in solver and importlib.util.find_spec(solver[c]) is None]
     if missing:
@@ -150,6 +150,13 @@ def cmd_bench_suite(args) -> int:
     from sim.bench.suite import bench_suite
 
     bench_suite(args.out, controllers, tuple(dict.fromkeys(args.only)) if args.only else None)
+    return 0
+
+
+def cmd_bench_tick(args) -> int:
+    from sim.bench.tick import bench_tick
+
+    bench_tick(args.out)
     return 0
 
 

@@ -4,7 +4,7 @@ The suite (listed in ``config/scenarios/README.md``) holds the kinds of scene a 
 meets: a slalom, a gap between parked cars, obstacles inside and outside bends, oncoming,
 crossing and appearing road users, a slow car to follow and one to pass, a tight low-speed
 S-curve with cones, a chicane, a double lane change, a roundabout and a mixed urban run. Each
-controller (default VF-LPC and the ground baselines NMPC (MPC-CBF), Koopman-MPC and pure pursuit)
+controller (default VF-LPC and the ground baselines NMPC (MPC-CBF), NMPC-RTI, Koopman-MPC and pure pursuit)
 runs each scene once, behind the safety supervisor, through ``sim.bench.impc.run_one``.
 
 It prints one row per scene and controller (outcome, collisions, least clearance, J_MC, RMS and
@@ -23,15 +23,16 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.bench.impc import LABELS, _fmt, run_one
+from sim.bench.impc import LABELS, _background, _fmt, run_one
 from vflpcd.base.paths import config_dir
 from vflpcd.config.scenarios import Scenario, load_scenario
 from sim.plot import save_png
 
-CONTROLLERS = ("vflpc", "nmpc_cbf", "koopman_mpc", "pure_pursuit")
+CONTROLLERS = ("vflpc", "nmpc_cbf", "nmpc_rti", "koopman_mpc", "pure_pursuit")
 PEAK_MARGIN = 1.0        # m: VF-LPC's peak lateral error may exceed the NMPC's by this much
 KEYS = ("outcome", "collisions", "min_clearance", "J_MC", "rms_lateral_error", "peak_lateral_error",
-        "jerk_p99", "jerk_max", "t_cal_median", "t_com", "failsafe", "interventions")
+        "jerk_p99", "jerk_max", "t_cal_median", "t_com", "failsafe", "interventions", "background_jobs",
+        "t_background_median", "t_background_p99", "t_background_max")
 
 
 def suite_dir() -> Path:
@@ -74,14 +75,14 @@ def totals(rows: list[dict], controllers: tuple[str, ...]) -> dict:
 
 
 HEAD = (f"{'scenario':<24} {'controller':<20} {'outcome':<10} {'coll':>4} {'clear m':>7} {'J_MC':>7} "
-        f"{'RMS lat':>7} {'peak lat':>8} {'jerk p99':>8} {'jerk max':>8} {'t_cal ms':>8}")
+        f"{'RMS lat':>7} {'peak lat':>8} {'jerk p99':>8} {'jerk max':>8} {'t_cal ms':>8} {'bg med/p99/max ms':>18}")
 
 
 def row_line(r: dict) -> str:
     return (f"{r['scenario']:<24} {LABELS[r['controller']]:<20} {r['outcome']:<10} {r['collisions']:>4} "
             f"{_fmt(r['min_clearance']):>7} {_fmt(r['J_MC']):>7} {_fmt(r['rms_lateral_error']):>7} "
             f"{_fmt(r['peak_lateral_error']):>8} {_fmt(r['jerk_p99']):>8} {_fmt(r['jerk_max']):>8} "
-            f"{_fmt(r['t_cal_median'], 1e3):>8}")
+            f"{_fmt(r['t_cal_median'], 1e3):>8} {_background(r):>18}")
 
 
 def totals_text(t: dict) -> str:

@@ -112,9 +112,14 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--only", nargs="+", action="extend", default=None, metavar="NAME",
                    help="scenes of config/scenarios/suite/ to run (default all)")
     b.add_argument("--controllers", default=None, metavar="A,B,...",
-                   help="comma-separated ground controllers (default vflpc,nmpc_cbf,koopman_mpc,pure_pursuit)")
+                   help="comma-separated ground controllers (default vflpc,nmpc_cbf,nmpc_rti,koopman_mpc,pure_pursuit)")
     _out(b)
     b.set_defaults(func=_simulator("cmd_bench_suite"))
+
+    b = bench.add_parser("tick", help="where a VF-LPC tick spends its time (phases in us, vehicle and quadrotor) "
+                                      "and how ticks and replans scale with static and moving obstacles")
+    _out(b)
+    b.set_defaults(func=_simulator("cmd_bench_tick"))
 
     p = sub.add_parser("run", help="run a mission: the daemon (fixed-rate VF-LPC loop, workers, telemetry, log)")
     p.add_argument("mission", type=Path, help="mission file (config/missions/*.toml)")

@@ -21,15 +21,19 @@ def run_refit(job: RefitJob):
     return refit_job(job)
 
 
-def run_inline(jobs: WorkerJobs) -> None:
+def run_inline(jobs: WorkerJobs) -> int:
     """The replan that the last step found due (the next step uses its result), then the GP refit
-    when one is due."""
+    when one is due. Returns how many jobs ran (0, 1 or 2)."""
+    ran = 0
     job = jobs.take_replan()
     if job is not None:
+        ran += 1
         try:
             jobs.install_plan(job, run_replan(jobs.planner, job))
         except GuidanceError as exc:
             jobs.replan_failed(job, str(exc))
     refit = jobs.take_refit()
     if refit is not None:
+        ran += 1
         jobs.install_model(refit, run_refit(refit))
+    return ran

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from sim.bench.suite import CONTROLLERS, load, suite_dir, suite_names, totals, totals_text
+from sim.bench.suite import load, suite_dir, suite_names, totals, totals_text
 from vflpcd.config.vehicles import BicycleConfig
 
 
@@ -26,7 +26,7 @@ def test_totals_count_clean_runs_collisions_and_the_lowest_j_mc_among_clean_runs
         row("c", "vflpc", "failsafe", J=0.2, peak=1.9), row("c", "nmpc_cbf", "timeout", J=0.2, peak=1.0),
         row("c", "koopman_mpc", "collision", 2, J=0.2), row("c", "pure_pursuit", "collision", 1, J=0.2),
     ]
-    t = totals(rows, CONTROLLERS)
+    t = totals(rows, ("vflpc", "nmpc_cbf", "koopman_mpc", "pure_pursuit"))
     c = t["controllers"]
     assert {k: v["clean"] for k, v in c.items()} == {"vflpc": 2, "nmpc_cbf": 1, "koopman_mpc": 2, "pure_pursuit": 1}
     assert {k: v["collisions"] for k, v in c.items()} == {"vflpc": 0, "nmpc_cbf": 1, "koopman_mpc": 2,

@@ -71,9 +71,9 @@ def test_a_due_replan_waits_for_the_background_and_the_next_step_uses_it(straigh
     first = ctrl._plan
     ctrl.step(plant.state, 0.05, [walker])        # the obstacle picture changed: a replan is due ...
     assert ctrl.replans == 1 and ctrl._plan is first
-    run_inline(ctrl.jobs)                         # ... and runs as worker work
+    assert run_inline(ctrl.jobs) == 1             # ... and runs as worker work
     assert ctrl.replans == 2 and ctrl._plan is not first
-    run_inline(ctrl.jobs)                         # nothing more is due
+    assert run_inline(ctrl.jobs) == 0             # nothing more is due
     assert ctrl.replans == 2
 
 

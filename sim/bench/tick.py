@@ -1,0 +1,195 @@
+"""`vflpcd bench tick`: where a VF-LPC control tick spends its time, and how ticks and replans scale.
+
+1. Breakdown. VF-LPC runs the closed loop of ``carsim_avoidance`` (the vehicle) and ``uav_3d``
+   (the quadrotor); each phase of every ``step`` is timed by wrapping the controller method that
+   does it: inputs (checks, path projection), guidance check (is a replan due; the replan itself
+   is background work, timed apart), reference (sampling the plan over the horizon), lift (window
+   frame and Koopman lift of the robot and the reference), error model (the horizon problem, and
+   its increment form), barrier (game region and the threats' safety points), solve (Eb-RHRL),
+   and the rest of the step (clip into the actuator limits, the solver shift, the GP sample),
+   which is the total less the phases. Median and p99 per phase, in microseconds.
+2. Scaling. A 200 m straight road at 25 km/h with N static posts beside the lane and M
+   pedestrians crossing it ahead of the car (N in 0 .. 40, M in 0 .. 8): the tick's median and
+   p99 and the background jobs' (replans) median, p99 and max per (N, M).
+
+JSON (both tables) and a PNG (the breakdown as bars, the scaling as lines) go to --out.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from functools import wraps
+from pathlib import Path
+
+import numpy as np
+
+from sim.plot import save_png
+from sim.runner import run_closed_loop
+from vflpcd.config.scenarios import line_scenario_toml, load_scenario
+from vflpcd.controllers import make_controller
+
+PLATFORMS = (("vehicle", "carsim_avoidance"), ("quadrotor", "uav_3d"))
+#: phase name -> (attribute path of the controller method that does it)
+PHASES = (("inputs", "_inputs"), ("guidance check", "_guidance"), ("reference", "_reference"),
+          ("lift", "errors.frame"), ("error model", "errors.problem"), ("barrier", "_barrier"), ("solve", "_solve"))
+RATE_PHASE = "error model"      # the increment form of the problem (each mode's RateForm.problem)
+REST = "clip, shift, GP sample"
+SCALING = ((0, 0), (10, 0), (20, 0), (40, 0), (10, 2), (10, 4), (10, 8), (40, 8))
+ROAD_M, SPEED = 200.0, 25.0 / 3.6
+
+
+def _owner(obj, path: str):
+    *parents, name = path.split(".")
+    for p in parents:
+        obj = getattr(obj, p, None)
+        if obj is None:
+            return None, name
+    return obj, name
+
+
+def timed_phases(controller) -> dict[str, list[float]]:
+    """Wrap the phase methods of a VF-LPC controller (and its step) with timers; returns the
+    per-tick seconds of each phase ("total" for the whole step), filled as the controller runs."""
+    ticks: dict[str, list[float]] = {"total": []}
+    current: dict[str, float] = {}
+
+    def wrap(fn, phase):
+        @wraps(fn)
+        def timed(*a, **k):
+            t0 = time.perf_counter_ns()
+            try:
+                return fn(*a, **k)
+            finally:
+                current[phase] = current.get(phase, 0.0) + (time.perf_counter_ns() - t0) * 1e-9
+        return timed
+
+    for phase, path in PHASES:
+        owner, name = _owner(controller, path)
+        if owner is not None and hasattr(owner, name):
+            setattr(owner, name, wrap(getattr(owner, name), phase))
+            ticks.setdefault(phase, [])
+    for mode in (getattr(controller, "_cruise_mode", None), getattr(controller, "_threat_mode", None)):
+        if mode is not None and mode[0] is not None:            # (RateForm, solver); frozen, so set directly
+            object.__setattr__(mode[0], "problem", wrap(mode[0].problem, RATE_PHASE))
+    step = controller.step
+
+    @wraps(step)
+    def timed_step(*a, **k):
+        current.clear()
+        t0 = time.perf_counter_ns()
+        u = step(*a, **k)
+        total = (time.perf_counter_ns() - t0) * 1e-9
+        ticks["total"].append(total)
+        for phase in ticks:
+            if phase not in ("total", REST):
+                ticks[phase].append(current.get(phase, 0.0))
+        ticks.setdefault(REST, []).append(total - sum(current.values()))
+        return u
+
+    controller.step = timed_step
+    return ticks
+
+
+def breakdown(scenario_name: str) -> dict:
+    scenario = load_scenario(scenario_name)
+    controller = make_controller("vflpc", scenario)
+    ticks = timed_phases(controller)
+    record = run_closed_loop(scenario, controller)
+    stats = {phase: {"median_us": float(np.median(v) * 1e6), "p99_us": float(np.percentile(v, 99) * 1e6)}
+             for phase, v in ticks.items() if v}
+    return {"scenario": scenario.name, "ticks": len(ticks["total"]), "outcome": record.outcome, "phases": stats}
+
+
+def scaling_scenario(posts: int, walkers: int) -> str:
+    """TOML of the scaling road: posts alternately 3.5 m left and right of the lane every
+    ROAD_M / (posts + 1) m, walkers crossing 60 .. 180 m ahead, each set off when the car is 35 m away."""
+    text = ""
+    for i in range(posts):
+        x = (i + 1) * ROAD_M / (posts + 1)
+        y = 3.5 if i % 2 == 0 else -3.5
+        text += f'\n[[obstacles]]\nid = "post{i}"\nshape = "circle"\nradius = 0.2\ncenter = [{x:.2f}, {y}]\n'
+    for j in range(walkers):
+        x = 60.0 + j * 120.0 / max(walkers, 1)
+        side = -6.0 if j % 2 == 0 else 6.0
+        text += (f'\n[[obstacles]]\nid = "walker{j}"\nshape = "circle"\nradius = 0.35\ncenter = [{x:.2f}, {side}]\n'
+                 f'velocity = [0.0, {-np.sign(side) * 1.4}]\ntrigger = "move"\ntrigger_distance = 35.0\n')
+    return line_scenario_toml(f"scaling_{posts}_{walkers}", length=ROAD_M, speed=SPEED, t_max=ROAD_M / SPEED + 30.0,
+                              obstacles=text)
+
+
+def scaling(folder: Path) -> list[dict]:
+    rows = []
+    folder.mkdir(parents=True, exist_ok=True)
+    for posts, walkers in SCALING:
+        f = folder / f"scaling_{posts}_{walkers}.toml"
+        f.write_text(scaling_scenario(posts, walkers))
+        scenario = load_scenario(f)
+        record = run_closed_loop(scenario, make_controller("vflpc", scenario))
+        m = record.metrics
+        rows.append({"static": posts, "movers": walkers, "outcome": record.outcome, "collisions": m["collisions"],
+                     "tick_median_ms": m["t_cal_median"] * 1e3, "tick_p99_ms": m["t_cal_p99"] * 1e3,
+                     "replans": m["background_jobs"], "replan_median_ms": m["t_background_median"] * 1e3,
+                     "replan_p99_ms": m["t_background_p99"] * 1e3, "replan_max_ms": m["t_background_max"] * 1e3})
+    return rows
+
+
+def plot(parts: dict, rows: list[dict], path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(13, 4.5))
+    names = [p for p in next(iter(parts.values()))["phases"] if p != "total"]
+    x = np.arange(len(names))
+    for i, (platform, part) in enumerate(parts.items()):
+        a.bar(x + (i - 0.5) * 0.4, [part["phases"].get(n, {}).get("median_us", 0.0) for n in names], 0.4,
+              label=f"{platform} (total {part['phases']['total']['median_us']:.0f} us)")
+    a.set_xticks(x, names, rotation=30, ha="right", fontsize=8)
+    a.set(ylabel="median per tick (us)", title="VF-LPC tick breakdown")
+    a.legend(fontsize=8)
+    for walkers in sorted({r["movers"] for r in rows}):
+        mine = [r for r in rows if r["movers"] == walkers]
+        b.plot([r["static"] for r in mine], [r["replan_p99_ms"] for r in mine], "o-", label=f"replan p99, {walkers} movers")
+    mine = [r for r in rows if r["movers"] == 0]
+    b.plot([r["static"] for r in mine], [r["tick_median_ms"] for r in mine], "s--", label="tick median, no mover")
+    b.set(xlabel="static obstacles", ylabel="ms", yscale="log", title="scaling (200 m road, 25 km/h)")
+    b.legend(fontsize=8)
+    fig.tight_layout()
+    return save_png(fig, path, 100)
+
+
+def bench_tick(out: Path) -> dict:
+    logging.getLogger("vflpcd.core.vflpc").setLevel(logging.ERROR)
+    logging.getLogger("vflpcd.config.koopman_file").setLevel(logging.WARNING)
+    parts = {platform: breakdown(name) for platform, name in PLATFORMS}
+    phases = list(dict.fromkeys(p for part in parts.values() for p in part["phases"]))
+    head = f"{'phase':<24}" + "".join(f" {platform + ' med/p99 us':>24}" for platform in parts)
+    lines = ["Tick breakdown (VF-LPC)", head, "-" * len(head)]
+    for phase in phases:
+        cells = []
+        for part in parts.values():
+            s = part["phases"].get(phase)
+            cells.append(f"{s['median_us']:.0f} / {s['p99_us']:.0f}" if s else "-")
+        lines.append(f"{phase:<24}" + "".join(f" {c:>24}" for c in cells))
+    lines.append("  " + ", ".join(f"{platform}: {part['scenario']} {part['ticks']} ticks, {part['outcome']}"
+                                  for platform, part in parts.items()))
+    print("\n".join(lines), flush=True)
+    rows = scaling(out / "scaling_scenarios")
+    head = (f"{'static':>6} {'movers':>6} {'outcome':<10} {'coll':>4} {'tick med ms':>11} {'tick p99 ms':>11} "
+            f"{'replans':>7} {'replan med/p99/max ms':>22}")
+    lines = ["", f"Scaling ({ROAD_M:.0f} m road at {SPEED * 3.6:.0f} km/h, posts beside the lane, pedestrians crossing)",
+             head, "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['static']:>6} {r['movers']:>6} {r['outcome']:<10} {r['collisions']:>4} {r['tick_median_ms']:>11.3f} "
+                     f"{r['tick_p99_ms']:>11.3f} {r['replans']:>7} "
+                     f"{r['replan_median_ms']:>8.1f}/{r['replan_p99_ms']:.1f}/{r['replan_max_ms']:.1f}")
+    print("\n".join(lines), flush=True)
+    doc = {"breakdown": parts, "scaling": rows}
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "bench_tick.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
+    png = plot(parts, rows, out / "bench_tick.png")
+    print(f"wrote {out / 'bench_tick.json'}\nwrote {png}")
+    return doc

@@ -1,0 +1,34 @@
+"""`vflpcd bench tick`: the phase timers add up to the tick, and the scaling scenes hold what they say."""
+
+import numpy as np
+
+from sim.bench.tick import REST, scaling_scenario, timed_phases
+from sim.runner import run_closed_loop
+from vflpcd.config.scenarios import load_scenario
+from vflpcd.controllers import make_controller
+
+
+def test_the_phases_of_every_tick_add_up_to_its_total(line_scenario):
+    s = line_scenario("tick_line", length=30.0)
+    ctrl = make_controller("vflpc", s)
+    ticks = timed_phases(ctrl)
+    rec = run_closed_loop(s, ctrl)
+    assert rec.outcome == "completed"
+    n = len(ticks["total"])
+    assert n == len(rec.t) and n > 50                  # every step was timed
+    phases = [p for p in ticks if p != "total"]
+    assert {"inputs", "reference", "lift", "error model", "barrier", "solve", REST} <= set(phases)
+    assert all(len(ticks[p]) == n for p in phases)
+    np.testing.assert_allclose(np.sum([ticks[p] for p in phases], axis=0), ticks["total"], rtol=1e-9, atol=1e-12)
+    assert np.all(np.array(ticks["solve"]) > 0.0) and np.median(ticks["solve"]) < np.median(ticks["total"])
+
+
+def test_the_scaling_road_has_its_posts_beside_the_lane_and_its_walkers_crossing(tmp_path):
+    f = tmp_path / "scaling.toml"
+    f.write_text(scaling_scenario(40, 8))
+    s = load_scenario(f)
+    posts = [o for o in s.obstacles if o.id.startswith("post")]
+    walkers = [o for o in s.obstacles if o.id.startswith("walker")]
+    assert len(posts) == 40 and len(walkers) == 8
+    assert all(abs(o.center[1]) == 3.5 and 0.0 < o.center[0] < s.path.length for o in posts)
+    assert all(o.velocity[1] * o.center[1] < 0.0 for o in walkers)         # each walks towards the lane
