@@ -201,9 +201,10 @@ class VFLPC(ControllerBase):
     def __init__(self, planner, model: LiftedLinearModel, params: VFLPCParams, limits: Limits,
                  body_radius: float, safety_margin: float, solver: HorizonSolver | None = None,
                  compensator: OnlineCompensator | None = None, name: str = "vflpc",
-                 state_names: Sequence[str] | None = None, period: float | None = None) -> None:
+                 state_names: Sequence[str] | None = None, period: float | None = None, solve_loop=None) -> None:
         self.planner, self.model, self.params, self.limits = planner, model, params, limits
-        """``period``: the control tick period (default the model's dt); ``limits.du_max`` is per tick."""
+        """``period``: the control tick period (default the model's dt); ``limits.du_max`` is per tick;
+        ``solve_loop``: Eb-RHRL's iterations compiled (``EbRHRL``'s ``loop``; None: its numpy path)."""
         self.state_names = tuple(state_names) if state_names is not None else tuple(model.state_names)
         missing = [n for n in model.state_names if n not in self.state_names]
         if missing:
@@ -234,11 +235,12 @@ class VFLPC(ControllerBase):
                 u_std = 0.25 * np.where(np.isfinite(span), span, 1.0)
             feats = rl_features(model, params.error_std, planner.v_desired, params.samples, params.size,
                                 params.nu, params.ell_factor, params.seed, u_std)
-            solver = EbRHRL(A, B, Q, R, P, em.gamma, feats, self.N, params.eta_a, params.i_max, params.tol)
+            solver = EbRHRL(A, B, Q, R, P, em.gamma, feats, self.N, params.eta_a, params.i_max, params.tol,
+                            loop=solve_loop)
             if self.rate is not None and params.R_rate_threat is not None:
                 rt = RateForm.of(em.A, em.B, em.Q, em.R, params.R_rate_threat, em.gamma)
                 self._threat_mode = (rt, EbRHRL(rt.A, rt.B, rt.Q, rt.R, rt.P, em.gamma, feats, self.N, params.eta_a,
-                                                params.i_max, params.tol))
+                                                params.i_max, params.tol, loop=solve_loop))
         self.solver, self.compensator = solver, compensator
         self._cruise_mode = (self.rate, solver)
         self.plan_gate = None          # set by the safety guard (vflpcd.core.safety): refuses undrivable replans

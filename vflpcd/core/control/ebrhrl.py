@@ -104,12 +104,14 @@ class EbRHRL:
 
     A (n, n), B (n, n_u): the nominal error model the prior and the Newton curvature come from;
     Q (n, n), R (n_u, n_u), P (n, n) terminal, gamma; features: Phi; N: horizon steps;
-    eta_a in (0, 1]: actor step; i_max, tol: iteration cap and tolerance on max epsilon_a.
+    eta_a in (0, 1]: actor step; i_max, tol: iteration cap and tolerance on max epsilon_a;
+    loop: ``ebrhrl_kernel.solve_loop`` compiled (``vflpcd.controllers.loops``) to run the
+    iterations with, or None for the numpy path (the same numbers to 1e-12); ``compiled`` says which.
     """
 
     def __init__(self, A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, P: np.ndarray,
                  gamma: float, features: KernelFeatures, N: int, eta_a: float = 1.0, i_max: int = 10,
-                 tol: float = 1e-8) -> None:
+                 tol: float = 1e-8, loop=None) -> None:
         if not (0.0 < gamma <= 1.0) or not (0.0 < eta_a <= 1.0) or N < 1 or i_max < 1:
             raise ValueError("need 0 < gamma <= 1, 0 < eta_a <= 1, N >= 1, i_max >= 1")
         self.A, self.B = np.array(A, float), np.array(B, float)
@@ -129,7 +131,13 @@ class EbRHRL:
         self.S, self.K = S, K
         M = 2.0 * self.R[None] + 2.0 * gamma * np.einsum("ji,tjk,kl->til", self.B, S[1:], self.B)
         self.M_inv = np.linalg.inv(M)                                   # (N, n_u, n_u)
+        self.loop = loop
         self.reset()
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the iterations run as a compiled loop."""
+        return self.loop is not None
 
     def reset(self) -> None:
         """Forget the learned weights (the actor becomes the LQR prior, the critic zero)."""
@@ -186,6 +194,8 @@ class EbRHRL:
         if problem.N != self.N or problem.n != self.n or problem.n_u != self.n_u:
             raise ValueError(f"problem of shape N={problem.N}, n={problem.n}, n_u={problem.n_u} "
                              f"does not match the solver's {self.N}, {self.n}, {self.n_u}")
+        if self.loop is not None:
+            return self._solve_compiled(problem, barrier)
         R2, gamma = 2.0 * self.R, self.gamma
         BT = problem.B.transpose(0, 2, 1)                                # (N, n_u, n)
         info = SolveInfo(0, False, np.inf, np.inf)
@@ -209,3 +219,20 @@ class EbRHRL:
             if info.converged or not np.isfinite(eps_a):
                 break
         return target, info
+
+    def _solve_compiled(self, problem: HorizonProblem, barrier: HorizonBarrier | None) -> tuple[np.ndarray, SolveInfo]:
+        """``solve`` by the compiled ``ebrhrl_kernel.solve_loop`` (the same iterations)."""
+        f = self.features
+        if barrier is not None and barrier.count:
+            pos, p_ref, x_p, normal, mu, length = (np.ascontiguousarray(barrier.pos_index, np.int64), barrier.p_ref,
+                                                   barrier.x_p, barrier.normal, barrier.mu, barrier.length)
+        else:
+            pos, p_ref, x_p, normal, mu, length = (np.zeros(1, np.int64), np.zeros((self.N + 1, 1)),
+                                                   np.zeros((0, self.N + 1, 1)), np.zeros((0, self.N + 1, 1)),
+                                                   np.zeros(0), 1.0)
+        c = np.ascontiguousarray
+        target, iterations, eps_a, eps_c = self.loop(
+            c(self.closed_loop(problem)), c(problem.B), c(problem.c), c(problem.x0), self.K, self.Q, 2.0 * self.R,
+            self.P, self.M_inv, self.gamma, self.W_a, self.W_c, f._a, f._b, f._h, pos, c(p_ref, float),
+            c(x_p, float), c(normal, float), c(mu, float), float(length), self.eta_a, self.i_max, self.tol, PHI_FLOOR)
+        return target, SolveInfo(int(iterations), bool(eps_a <= self.tol), float(eps_a), float(eps_c))

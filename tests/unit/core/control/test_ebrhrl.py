@@ -5,6 +5,7 @@ import pytest
 import scipy.linalg as sl
 from scipy.optimize import minimize
 
+from vflpcd.controllers.loops import ebrhrl_loop
 from vflpcd.core.control.barrier import HorizonBarrier
 from vflpcd.core.control.ebrhrl import EbRHRL, KernelFeatures
 from vflpcd.core.control.problem import HorizonProblem, finite_horizon_lqr
@@ -113,3 +114,53 @@ def test_shape_mismatch_is_an_error():
                             "u_ref": prob.u_ref[:-1]})
     with pytest.raises(ValueError, match="does not match"):
         solver.solve(bad)
+
+
+LOOP = ebrhrl_loop()
+needs_numba = pytest.mark.skipif(LOOP is None, reason="numba is not installed")
+
+
+def _two_barriers(rng) -> HorizonBarrier:
+    """Two obstacles whose planes move along the horizon; the first lies close enough that part
+    of the predictions are past PI_MIN (the tangent-line branch)."""
+    T = N + 1
+    ang = rng.uniform(0, 2 * np.pi, (2, T))
+    normal = np.stack([np.cos(ang), np.sin(ang)], axis=-1)
+    x_p = np.stack([np.tile([0.2, 0.1], (T, 1)), np.tile([-0.8, 0.4], (T, 1))]) + 0.1 * rng.normal(size=(2, T, 2))
+    return HorizonBarrier(pos_index=np.array([0, 2]), p_ref=0.1 * rng.normal(size=(T, 2)), x_p=x_p,
+                          normal=normal, mu=np.array([3.0, 1.0]), length=0.5)
+
+
+@needs_numba
+@pytest.mark.parametrize("seed", range(6))
+def test_the_compiled_iterations_give_the_numpy_numbers(seed):
+    """The same iterations, weights and diagnostics, to 1e-12, with time-varying A_tau, B_tau
+    (a GP's Jacobians, close to the nominal pair so that the iterations converge: on a diverging
+    solve any two summation orders part), an affine term, warm weights and zero, one or two barriers."""
+    rng, A, B, Q, R = _system(seed)
+    P = sl.solve_discrete_are(A, B, Q, R)
+    feats = _features(rng)
+    prob = _problem(A, B, Q, R, P, rng.normal(size=n), 0.1 * rng.normal(size=(N, n)))
+    prob = HorizonProblem(**{**prob.__dict__, "A": prob.A + 0.002 * rng.normal(size=prob.A.shape),
+                             "B": prob.B + 0.002 * rng.normal(size=prob.B.shape)})
+    barrier = [None, _barrier(), _two_barriers(rng)][seed % 3]
+    fast = EbRHRL(A, B, Q, R, P, 1.0, feats, N, i_max=15, tol=1e-30, loop=LOOP)
+    slow = EbRHRL(A, B, Q, R, P, 1.0, feats, N, i_max=15, tol=1e-30)
+    assert fast.compiled and not slow.compiled
+    fast.W_a = slow.W_a = 0.02 * rng.normal(size=fast.W_a.shape)
+    fast.W_a, fast.W_c = fast.W_a.copy(), 0.01 * rng.normal(size=fast.W_c.shape)
+    slow.W_c = fast.W_c.copy()
+    for _ in range(3):                                   # three ticks, shifted in between
+        u_fast, i_fast = fast.solve(prob, barrier)
+        u_slow, i_slow = slow.solve(prob, barrier)
+        scale = max(1.0, np.abs(u_slow).max())
+        assert np.abs(u_fast - u_slow).max() <= 1e-12 * scale
+        for W in ("W_a", "W_c"):
+            a, b = getattr(fast, W), getattr(slow, W)
+            assert np.abs(a - b).max() <= 1e-12 * max(1.0, np.abs(b).max())
+        assert i_fast.iterations == i_slow.iterations and i_fast.converged == i_slow.converged
+        assert i_slow.eps_a < 1.0                         # a solve that converges, not one that diverges
+        for eps in ("eps_a", "eps_c"):        # halves of squared residuals: rounding of 1e-12 in them squared
+            assert abs(getattr(i_fast, eps) - getattr(i_slow, eps)) <= 1e-10 * max(1.0, getattr(i_slow, eps))
+        fast.shift()
+        slow.shift()
