@@ -171,7 +171,15 @@ class ReferencePath:
         """
         p = np.asarray(p, dtype=float)
         if s_hint is None:
-            idx = np.arange(len(self._seg_vec))
+            idx = slice(0, len(self._seg_vec))
+        elif not self.closed:                 # the segments overlapping [lo, lo + span]: s is sorted
+            lo, span = s_hint - back, back + ahead
+            i0 = int(np.searchsorted(self.s[1:], lo, side="left"))
+            i1 = int(np.searchsorted(self.s[:-1], lo + span, side="right"))
+            if i1 <= i0:
+                i0 = len(self._seg_vec) - 1 if lo > 0 else 0
+                i1 = i0 + 1
+            idx = slice(i0, i1)
         else:
             lo, span = s_hint - back, back + ahead
             starts, ends = self.s[:-1], self.s[1:]
@@ -180,10 +188,8 @@ class ReferencePath:
                 rel_start = np.mod(starts - lo, self.length)
                 rel_end = np.mod(ends - lo, self.length)
                 idx = np.nonzero((rel_start <= span) | (rel_end <= span) | (rel_end < rel_start))[0]
-            elif self.closed:
-                idx = np.arange(len(self._seg_vec))
             else:
-                idx = np.nonzero((ends >= lo) & (starts <= lo + span))[0]
+                idx = np.arange(len(self._seg_vec))
             if idx.size == 0:
                 idx = np.array([len(self._seg_vec) - 1 if lo > 0 else 0])
         a = self.points[idx]
@@ -192,7 +198,7 @@ class ReferencePath:
         foot = a + w[:, None] * v
         d2 = np.einsum("ij,ij->i", p - foot, p - foot)
         k = int(np.argmin(d2))
-        i = idx[k]
+        i = idx.start + k if isinstance(idx, slice) else int(idx[k])
         s = float(self.s[i] + w[k] * np.sqrt(self._seg_len2[i]))
         tangent = self.tangent_at(s)  # vertex tangents interpolated: smooth along the path
         point = foot[k]

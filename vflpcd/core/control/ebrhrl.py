@@ -132,6 +132,7 @@ class EbRHRL:
         M = 2.0 * self.R[None] + 2.0 * gamma * np.einsum("ji,tjk,kl->til", self.B, S[1:], self.B)
         self.M_inv = np.linalg.inv(M)                                   # (N, n_u, n_u)
         self.loop = loop
+        self._closed = None
         self.reset()
 
     @property
@@ -172,8 +173,14 @@ class EbRHRL:
         return x, u, phi
 
     def closed_loop(self, problem: HorizonProblem) -> np.ndarray:
-        """A_tau - B_tau K_tau (N, n, n): the error model under the prior."""
-        return problem.A - np.einsum("tiu,tun->tin", problem.B, self.K)
+        """A_tau - B_tau K_tau (N, n, n): the error model under the prior (kept while the problem's
+        A and B are the same arrays as at the last call)."""
+        last = self._closed
+        if last is not None and last[0] is problem.A and last[1] is problem.B:
+            return last[2]
+        A_cl = np.ascontiguousarray(problem.A - np.einsum("tiu,tun->tin", problem.B, self.K))
+        self._closed = (problem.A, problem.B, A_cl)
+        return A_cl
 
     def costates(self, problem: HorizonProblem, x: np.ndarray, u: np.ndarray,
                  barrier: HorizonBarrier | None, closed: np.ndarray | None = None) -> np.ndarray:

@@ -84,6 +84,8 @@ class ErrorModel:
         self.K_terminal = np.linalg.solve(self.R + self.gamma * self.B.T @ self.P @ self.B,
                                           self.gamma * self.B.T @ self.P @ self.A)
         self._B_x_pinv = np.linalg.pinv(B[: model.n_x])
+        self._A_N = np.broadcast_to(self.A, (self.N, self.n, self.n))
+        self._B_N = np.broadcast_to(self.B, (self.N, self.n, model.n_u))
         self.layout = PoseLayout.of(model.state_names)
 
     def frame(self, state: np.ndarray, reference: np.ndarray) -> TickFrame:
@@ -108,8 +110,7 @@ class ErrorModel:
             A = np.array([a[:-1, :-1] for a, _ in jac])
             B = np.array([b[:-1] for _, b in jac])
         else:
-            A = np.broadcast_to(self.A, (N, self.n, self.n))
-            B = np.broadcast_to(self.B, (N, self.n, m.n_u))
+            A, B = self._A_N, self._B_N       # the same arrays every tick: solvers may keep what they derive from them
         c = (nxt - U_r[1:])[:, :-1]
         x0 = (frame.U - U_r[0])[:-1]
         return HorizonProblem(A=A, B=B, c=c, x0=x0, Q=self.Q, R=self.R, P=self.P, gamma=self.gamma, u_ref=u_r,

@@ -18,7 +18,7 @@ u~_0 = u~_{-1} + v_0.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as sl
@@ -41,6 +41,7 @@ class RateForm:
     P: np.ndarray
     K_terminal: np.ndarray
     gamma: float
+    _pair: list = field(default_factory=lambda: [None, None, None], compare=False, repr=False)
 
     @classmethod
     def of(cls, A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, R_rate: np.ndarray,
@@ -60,7 +61,7 @@ class RateForm:
         """The increment form of problem p (module docstring); its u_ref is the previous deviation
         carried along (zeros: v has no reference) and its input bounds are open."""
         N, n_u = p.N, self.n_u
-        A, B = augment_pair(p.A, p.B)
+        A, B = self._augmented(p.A, p.B)
         c = np.concatenate([p.c, np.zeros((N, n_u))], axis=1)
         x0 = np.concatenate([p.x0, p.u_prev - p.u_ref[0]])
         G = np.concatenate([p.G, np.zeros(p.G.shape[:2] + (n_u,))], axis=2)
@@ -68,6 +69,15 @@ class RateForm:
         return HorizonProblem(A=A, B=B, c=c, x0=x0, Q=self.Q, R=self.R, P=self.P, gamma=p.gamma,
                               u_ref=np.zeros((N, n_u)), u_min=-open_, u_max=open_, du_max=open_,
                               u_prev=np.zeros(n_u), G=G, g=p.g)
+
+    def _augmented(self, A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """augment_pair(A, B), kept while the problem's A and B are the same arrays (the nominal
+        linearisation hands out the same ones every tick)."""
+        if self._pair[0] is A and self._pair[1] is B:
+            return self._pair[2]
+        out = augment_pair(A, B)
+        self._pair[:] = [A, B, out]
+        return out
 
     def deviation(self, z0: np.ndarray, v0: np.ndarray) -> np.ndarray:
         """The first control deviation u~_0 = u~_{-1} + v_0 from the increment-form start z0."""
