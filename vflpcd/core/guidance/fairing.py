@@ -90,15 +90,18 @@ def half_planes(x: np.ndarray, t: np.ndarray, regions: Sequence[Region]) -> tupl
 
 def _hessian_bands(K: int, d: int, eps: float) -> np.ndarray:
     """kron(D2'D2 + eps I, I_d) over the interleaved coordinates x[k d + j], in solveh_banded's
-    upper layout with 2 d + 1 super-diagonals: ab[u + i - j, j] = M[i, j]."""
-    D2 = np.zeros((K - 2, K))
-    rows = np.arange(K - 2)
-    D2[rows, rows], D2[rows, rows + 1], D2[rows, rows + 2] = 1.0, -2.0, 1.0
-    M = np.kron(D2.T @ D2 + eps * np.eye(K), np.eye(d))
+    upper layout with 2 d + 1 super-diagonals: ab[u + i - j, j] = M[i, j]. D2'D2 is the
+    pentadiagonal [1 -2 1]' [1 -2 1] sum: main diagonal 1, 5, 6 .. 6, 5, 1, first off-diagonal
+    -2, -4 .. -4, -2, second 1; in the interleaved matrix they sit at offsets 0, d and 2 d."""
+    main = np.full(K, 6.0)
+    main[[0, -1]], main[[1, -2]] = 1.0, 5.0
+    off1 = np.full(K - 1, -4.0)
+    off1[[0, -1]] = -2.0
     u = 2 * d + 1
     ab = np.zeros((u + 1, K * d))
-    for off in range(u + 1):
-        ab[u - off, off:] = np.diagonal(M, off)
+    ab[u] = np.repeat(main + eps, d)
+    ab[u - d, d:] = np.repeat(off1, d)
+    ab[u - 2 * d, 2 * d:] = 1.0
     return ab
 
 

@@ -127,3 +127,21 @@ def test_a_warm_active_set_gives_the_same_minimiser():
     cold, active = _solve_convex(r, eps, n, b, r, pin_end=True)
     warm, _ = _solve_convex(r, eps, n, b, r, pin_end=True, active0=active | np.isfinite(b))
     assert np.max(np.abs(warm - cold)) < 1e-6
+
+
+@pytest.mark.parametrize("K, d", [(6, 2), (7, 2), (240, 2), (9, 3), (50, 3)])
+def test_the_banded_hessian_is_the_kronecker_product_of_the_bending_energy(K, d):
+    """_hessian_bands, built from the closed-form diagonals of D2'D2, against the dense
+    kron(D2'D2 + eps I, I_d) taken into solveh_banded's upper layout."""
+    from vflpcd.core.guidance.fairing import _hessian_bands
+
+    eps = 3e-4
+    D2 = np.zeros((K - 2, K))
+    rows = np.arange(K - 2)
+    D2[rows, rows], D2[rows, rows + 1], D2[rows, rows + 2] = 1.0, -2.0, 1.0
+    M = np.kron(D2.T @ D2 + eps * np.eye(K), np.eye(d))
+    u = 2 * d + 1
+    expected = np.zeros((u + 1, K * d))
+    for off in range(u + 1):
+        expected[u - off, off:] = np.diagonal(M, off)
+    np.testing.assert_array_equal(_hessian_bands(K, d, eps), expected)
