@@ -8,8 +8,8 @@
    side that leaves the path least, i.e. the side where the repulsive region reaches less far
    across the path (measured along the path normal at the obstacle); gamma_i is then the sign
    that makes gamma_i E grad varphi_i point along the path on that side. A mover that crosses the
-   path faster than ``CROSSING_SPEED`` is passed behind, on the side it comes from (swerving to
-   the side it rides to puts the robot in its way).
+   path faster than ``CROSSING_SPEED`` (1 m/s: walkers too) is passed behind, on the side it comes
+   from (swerving to the side it moves to puts the robot in its way).
 3. Virtual obstacles (``virtual = "auto"``): for each static obstacle whose reactive region
    the stretch enters, a circle whose repulsive boundary Q_vrtl has the turning radius
    v_d^2 / a_max, touches the path ``r_q * lead`` metres before the entry into R_actl on the
@@ -45,11 +45,14 @@ from vflpcd.core.path import ReferencePath, nearest_on_polyline
 from vflpcd.core.safety.monitors import PlanLimits, check_plan
 
 VIRTUAL_LEAD = np.radians(30.0)  # heading change the virtual obstacle gives before R_actl
-# m/s across the path: a mover crossing faster (a cyclist, a car) is passed behind, on the side it
-# comes from; passing in front of it holds only while both keep to the planned timing (mixed_urban:
-# the car passed 0.3 s ahead of a 4 m/s cyclist and was hit at the rear). Slower walkers are passed
-# where they leave the path least.
-CROSSING_SPEED = 2.0
+# m/s across the path: a mover crossing faster (a walker, a cyclist, a car) is passed behind, on the
+# side it comes from; passing in front of it holds only while both keep to the planned timing
+# (mixed_urban: the car passed 0.3 s ahead of a 4 m/s cyclist and was hit at the rear), and a path
+# that passes on the side a walker walks to follows its region across the road (bench tick's
+# scaling road at 2.0: the plan left the road beside a 1.4 m/s walker and every replan then failed;
+# pedestrian_appears: J_MC 2.09 at 2.0, 0.12 at 1.0). Slower movers are passed where they leave the
+# path least (bench variants seed 46 at 0.5: passing behind a 0.87 m/s walker boxed the car in).
+CROSSING_SPEED = 1.0
 FOLLOW_SPEEDS = (0.8, 0.6, 0.45, 0.3, 0.2, 0.1)  # of v_desired: slower speed plans tried behind a mover
 # A plan is slowed to follow only when it enters a mover's repulsive region deeper than this fraction
 # of the level |c_i|: the movers placed by MOVER_PASSES at the last pass's times leave grazes of
