@@ -151,7 +151,8 @@ class Supervisor:
         """Least clearance (m) of the body along the manoeuvre "u for the reaction time, then the stop",
         and the obstacle that sets it ("" and inf without obstacles near). For a moving obstacle the
         better of that and "u held as long" counts: passing a mover by going on is as safe as stopping
-        before it, and braking into its way is not."""
+        before it, and braking into its way is not (going on counts every mover, also those that end
+        up behind the body's middle)."""
         self.movers_near = False
         if not obstacles:
             return np.inf, ""
@@ -174,8 +175,10 @@ class Supervisor:
                     if min(ca, cb) > min(cs, cm):
                         (cs, ws), (cm, wm) = (ca, wa), (cb, wb)
             if cm < self.cfg.release_margin:
+                # going on clears a mover only if no mover meets the body on the way, also one that
+                # the turn brings behind the body's middle (a crossing car the body turns in front of)
                 pos, yaw, times = self._poses(state, u, False)
-                _, (cg, wg) = self._clearances(pos, yaw, t + times, arrays, movers_only=True)
+                _, (cg, wg) = self._clearances(pos, yaw, t + times, arrays, movers_only=True, behind=True)
                 if cg > cm:
                     cm, wm = cg, wg
             result = (cs, ws) if cs <= cm else (cm, wm)

@@ -230,3 +230,18 @@ def test_the_stop_after_a_failsafe_steers_off_what_braking_with_the_steering_hel
         return least
     held, aware = run(False), run(True)
     assert held <= 0.0 < aware
+
+
+def test_going_on_counts_a_mover_that_the_turn_brings_behind_the_body():
+    """A car turning left in front of a car crossing from the right (the state of a real-time
+    iteration NMPC in the suite's junction_crossing_car, 0.75 s before it was hit): braking keeps
+    only 1 cm, and going on, hard left at +3 m/s^2, puts the crossing car behind the body's middle
+    where it catches it up. Going on must count that mover: the command is overridden."""
+    plant, sup, body = car(3.0848)
+    plant.reset(np.array([57.6108, 0.3151, 0.1297, 3.0848, 0.62, 0.3614]))
+    sup.delta = 0.3806                                   # the steering that the commands sent have reached
+    crossing = ObstacleState("crossing_car", Box(4.5, 1.9), np.array([60.0, -6.0]), np.pi / 2,
+                             np.array([0.0, 5.0]), 9.85)
+    v = sup.filter(plant.state, np.array([3.0, 0.4106]), [crossing], 9.85)
+    assert v.override and v.nearest == "crossing_car" and v.clearance < CFG.margin
+    assert v.command[0] == -6.0                          # it brakes
