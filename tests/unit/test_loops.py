@@ -32,3 +32,21 @@ def test_without_a_writable_cache_it_compiles_in_memory(monkeypatch, caplog):
         assert loop is not None and "event=loop_cache_unavailable" in caplog.text
     finally:
         loops.ebrhrl_loop.cache_clear()
+
+
+def test_the_loop_is_loaded_before_the_first_tick_for_the_types_the_solver_passes(tmp_path):
+    """ebrhrl_loop() compiles the signature that VF-LPC's solver calls with: its first step adds none."""
+    import numpy as np
+
+    from vflpcd.config.scenarios import line_scenario_toml, load_scenario
+    from vflpcd.controllers import make_controller
+
+    loops.ebrhrl_loop.cache_clear()
+    loop = loops.ebrhrl_loop()
+    assert len(loop.signatures) == 1
+    f = tmp_path / "line.toml"
+    f.write_text(line_scenario_toml("line"))
+    ctrl = make_controller("vflpc", load_scenario(f))
+    assert ctrl.solver.loop is loop
+    ctrl.step(np.array([0.0, 0.3, 0.0, 5.0, 0.0, 0.0]), 0.0)
+    assert len(loop.signatures) == 1

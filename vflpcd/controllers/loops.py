@@ -18,7 +18,7 @@ log = logging.getLogger(__name__)
 
 @lru_cache(maxsize=1)
 def ebrhrl_loop():
-    """``solve_loop`` compiled, or None without numba."""
+    """``solve_loop`` compiled and loaded (``_warm``), or None without numba."""
     try:
         from numba import njit
     except ImportError:
@@ -27,7 +27,20 @@ def ebrhrl_loop():
     from vflpcd.core.control.ebrhrl_kernel import solve_loop
 
     try:
-        return njit(cache=True)(solve_loop)
+        loop = njit(cache=True)(solve_loop)
     except RuntimeError as exc:          # no writable cache location (numba's "no locator available")
         log.warning("event=loop_cache_unavailable loop=ebrhrl reason=%s (compiling in memory; set NUMBA_CACHE_DIR)", exc)
-        return njit(cache=False)(solve_loop)
+        loop = njit(cache=False)(solve_loop)
+    _warm(loop)
+    return loop
+
+
+def _warm(loop) -> None:
+    """Compile (or load) the loop now, for the argument types EbRHRL passes, so that a controller's
+    first tick does not pay for it (a daemon's first deadline)."""
+    import numpy as np
+
+    z = np.zeros
+    loop(z((1, 1, 1)), z((1, 1, 1)), z((1, 1)), z(1), z((1, 1, 1)), z((1, 1)), z((1, 1)), z((1, 1)), z((1, 1, 1)),
+         1.0, z((1, 1, 1)), z((2, 1, 1)), z(1), z((1, 1)), z(1), z(1, np.int64), z((2, 1)), z((0, 2, 1)),
+         z((0, 2, 1)), z(0), 1.0, 1.0, 1, 1e-8, 1e-2)
