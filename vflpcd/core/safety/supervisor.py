@@ -4,7 +4,8 @@ Rule (a last-chance braking filter). A command u passes when, after applying it 
 time (one control period plus the actuator latency), the platform's emergency manoeuvre from the
 state reached stops the body without coming closer than ``margin`` to any obstacle it knows of:
 static ones, and moving ones along their constant-velocity prediction, each at the time the body
-gets there. Otherwise u is replaced by the emergency manoeuvre at once. So the body never enters a
+gets there, and where it stops, it stays out of the way of the movers that cross its heading for
+``mover_wait_s`` (a stop in a crossing car's path is no safe stop). Otherwise u is replaced by the emergency manoeuvre at once. So the body never enters a
 known obstacle while a stop is still possible, and when none is possible any more it still brakes.
 After an intervention the command is handed back only once it keeps ``release_margin`` (more than
 ``margin``), so that the override does not chatter.
@@ -159,7 +160,7 @@ class Supervisor:
         key = self._memo_key(state, u, obstacles)
         if key is not None and key == self._memo[0]:
             return self._memo[1]
-        arrays = ObstacleArrays.of(obstacles, self.DIM)
+        arrays = full = ObstacleArrays.of(obstacles, self.DIM)
         near = self._within_reach(state, u, arrays, t)
         self.movers_near = bool((near & arrays.moving).any())
         if not near.any():
@@ -168,22 +169,47 @@ class Supervisor:
             if not near.all():
                 arrays = arrays.subset(near)
             pos, yaw, times = self._poses(state, u, True)
-            (cs, ws), (cm, wm) = self._clearances(pos, yaw, t + times, arrays)
+            (cs, ws), (cm, wm) = self._stop_clearances(pos, yaw, t + times, arrays)
             if min(cs, cm) < self.cfg.release_margin:
                 for alt in self._alternative_stops(state, u):
-                    (ca, wa), (cb, wb) = self._clearances(*alt[:2], t + alt[2], arrays)
+                    (ca, wa), (cb, wb) = self._stop_clearances(*alt[:2], t + alt[2], arrays)
                     if min(ca, cb) > min(cs, cm):
                         (cs, ws), (cm, wm) = (ca, wa), (cb, wb)
             if cm < self.cfg.release_margin:
                 # going on clears a mover only if no mover meets the body on the way, also one that
-                # the turn brings behind the body's middle (a crossing car the body turns in front of)
-                pos, yaw, times = self._poses(state, u, False)
-                _, (cg, wg) = self._clearances(pos, yaw, t + times, arrays, movers_only=True, behind=True)
+                # the turn brings behind the body's middle (a crossing car the body turns in front of),
+                # for as long as a stop must stay out of the movers' way (mover_wait_s) beyond the stop:
+                # every mover, as the way is longer than the stop that bounds "within reach"
+                pos, yaw, times = self._poses(state, u, False, hold=self.cfg.mover_wait_s)
+                _, (cg, wg) = self._clearances(pos, yaw, t + times, full, movers_only=True, behind=True)
                 if cg > cm:
                     cm, wm = cg, wg
             result = (cs, ws) if cs <= cm else (cm, wm)
         self._memo = (key, result)
         return result
+
+    def _stop_clearances(self, pos: np.ndarray, yaw: np.ndarray, times: np.ndarray, arrays: ObstacleArrays
+                         ) -> tuple[tuple[float, str], tuple[float, str]]:
+        """``_clearances`` of a stop (poses pos (K, d), yaw (K,) at absolute times (K,)), and of the
+        body standing where it stops for ``mover_wait_s``, to the movers that cross its heading there
+        (more across it than along it): a stop in a crossing car's or walker's way is no safe stop,
+        wherever it comes from. Movers along the heading (a car following in the lane) do not count
+        there: one that runs into a body at rest does so by its own motion."""
+        static, mover = self._clearances(pos, yaw, times, arrays)
+        if not arrays.moving.any() or self.cfg.mover_wait_s <= 0.0:
+            return static, mover
+        heading = self._heading(pos[-1:], yaw[-1:])[0]
+        v = arrays.velocity
+        along = np.abs(v @ heading)
+        across = np.sqrt(np.maximum((v * v).sum(axis=1) - along ** 2, 0.0))
+        crossing = arrays.moving & (across > along)
+        if not crossing.any():
+            return static, mover
+        wait = times[-1] + np.linspace(0.0, self.cfg.mover_wait_s, 9)[1:]
+        standing = (np.repeat(pos[-1:], len(wait), axis=0), np.full(len(wait), yaw[-1]), wait)
+        _, (cw, ww) = self._clearances(*standing, arrays.subset(crossing) if not crossing.all() else arrays,
+                                       movers_only=True, behind=True)
+        return static, (cw, ww) if cw < mover[0] else mover
 
     def _alternative_stops(self, state: np.ndarray, u: np.ndarray) -> list:
         """Other stops after "u for the reaction time" that the emergency manoeuvre can take (poses,
@@ -208,10 +234,11 @@ class Supervisor:
 
     def _within_reach(self, state: np.ndarray, u: np.ndarray, arrays: ObstacleArrays, t: float) -> np.ndarray:
         """Which obstacles may come within release_margin of the body during the manoeuvre "u for the
-        reaction time, then the stop" (its length and duration bound it), shape (n_o,) bool: a lower
-        bound of each one's distance from the body now (bounding circle and oriented bounding box),
-        less its own motion."""
+        reaction time, then the stop" and the ``mover_wait_s`` standing after it (its length and
+        duration bound it), shape (n_o,) bool: a lower bound of each one's distance from the body now
+        (bounding circle and oriented bounding box), less its own motion."""
         distance, duration = self._extent(state, u)
+        duration += self.cfg.mover_wait_s
         pos, _ = self._pose_now(state)
         gap = arrays.gap_bound(pos)
         velocity = arrays.velocity
@@ -303,7 +330,7 @@ class Supervisor:
     def _clip(self, u: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def _poses(self, state: np.ndarray, u: np.ndarray, brake: bool):  # pragma: no cover - abstract
+    def _poses(self, state: np.ndarray, u: np.ndarray, brake: bool, hold: float = 0.0):  # pragma: no cover - abstract
         raise NotImplementedError
 
     def _discs(self, pos: np.ndarray, yaw: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
@@ -394,9 +421,9 @@ class GroundSupervisor(Supervisor):
         return s1 + v1 * v1 / (2.0 * self.a_brake), t1 + v1 / self.a_brake
 
     def _poses(self, state: np.ndarray, u: np.ndarray, brake: bool, ramp: bool = False,
-               settle: float | None = None):
+               settle: float | None = None, hold: float = 0.0):
         """Poses (K, 2), yaws (K,) and times from now (K,) of "u for the reaction time, then the stop"
-        (``brake``) or "u held as long" (not ``brake``). The steering moves toward u's at the rate
+        (``brake``) or "u held as long" (not ``brake``; at least 1 s, and ``hold`` s more). The steering moves toward u's at the rate
         limit for one period and is then held; with ``ramp`` it keeps moving through the stop (the
         second arc has the steering reached halfway through it); with ``settle`` it moves from
         there toward ``settle`` through the stop (the emergency stop that straightens, ``settle`` 0)."""
@@ -410,7 +437,7 @@ class GroundSupervisor(Supervisor):
         a1 = float(u[0])
         t1, v1, s1 = _run(v0, a1, T)
         t_stop = v1 / self.a_brake
-        a2, t2 = (-self.a_brake, t_stop) if brake else (a1, max(t_stop, 1.0))
+        a2, t2 = (-self.a_brake, t_stop) if brake else (a1, max(t_stop, 1.0) + hold)
         t2, _, s2 = _run(v1, a2, t2)
         if ramp:
             turn = lim.delta_rate_max * (self.reaction + 0.5 * t2)
@@ -551,12 +578,12 @@ class AerialSupervisor(Supervisor):
         return float(np.linalg.norm(v0 * T + 0.5 * u * T * T)) + speed * speed / (2.0 * self.a_brake), \
             T + speed / self.a_brake
 
-    def _poses(self, state: np.ndarray, u: np.ndarray, brake: bool):
+    def _poses(self, state: np.ndarray, u: np.ndarray, brake: bool, hold: float = 0.0):
         p0, v0, T = state[self._p], state[self._v], self.reaction
         p1, v1 = p0 + v0 * T + 0.5 * u * T * T, v0 + u * T
         speed = float(np.linalg.norm(v1))
         t_stop = speed / self.a_brake
-        t_end = T + (t_stop if brake else max(t_stop, 1.0))
+        t_end = T + (t_stop if brake else max(t_stop, 1.0) + hold)
         reach = np.linalg.norm(p1 - p0) + (speed * t_stop / 2 if brake else speed * (t_end - T))
         n = int(min(self.cfg.samples, max(2, np.ceil(reach / self.cfg.max_step_m) + 2)))
         tau = np.linspace(0.0, t_end, n)

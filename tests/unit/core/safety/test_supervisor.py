@@ -245,3 +245,26 @@ def test_going_on_counts_a_mover_that_the_turn_brings_behind_the_body():
     v = sup.filter(plant.state, np.array([3.0, 0.4106]), [crossing], 9.85)
     assert v.override and v.nearest == "crossing_car" and v.clearance < CFG.margin
     assert v.command[0] == -6.0                          # it brakes
+
+
+def test_a_car_is_not_stopped_in_the_way_of_a_crossing_car():
+    """A car cruising at 6 m/s towards a junction that a car crosses from the right at 5 m/s (the
+    suite's junction_crossing_car at t = 8.4 s): going on passes ahead of it, and a stop is safe only
+    where the body then stays out of the crossing car's way for mover_wait_s. Before, the
+    supervisor braked once going on no longer cleared it within 1 s and left the car at rest with
+    its nose in the crossing lane, where the crossing car hit it."""
+    plant, sup, body = car(6.0)
+    plant.reset(np.array([50.4, 0.0, 0.0, 6.0, 0.0, 0.0]))
+    crossing = ObstacleState("crossing_car", Box(4.5, 1.9), np.array([60.0, -13.25]), np.pi / 2,
+                             np.array([0.0, 5.0]), 0.0)
+    least, impact = np.inf, None
+    for k in range(int(6.0 / DT)):
+        t = k * DT
+        now = ObstacleState(crossing.id, crossing.shape, crossing.center_at(t), crossing.yaw, crossing.velocity, t)
+        v = sup.filter(plant.state, np.array([0.0, 0.0]), [now], t)
+        plant.step(v.command, DT)
+        gap = body.clearance(crossing.shape, crossing.center_at(t + DT), crossing.yaw, plant.position(), plant.heading())
+        if gap <= 0.0 and impact is None:
+            impact = float(np.hypot(*plant.velocity_world()))
+        least = min(least, gap)
+    assert impact is None and least > 0.0
