@@ -358,9 +358,9 @@ class NmpcCbf(ControllerBase):
         """One call of the solver: (usable, status, solution); usable = IPOPT succeeded with a
         finite solution."""
         sol = self._solver(**args)
-        status = str(self._solver.stats().get("return_status", "?"))
-        ok = bool(self._solver.stats().get("success", False)) and bool(np.all(np.isfinite(np.asarray(sol["x"], float))))
-        return ok, status, sol
+        stats = self._solver.stats()
+        ok = bool(stats.get("success", False)) and bool(np.all(np.isfinite(np.asarray(sol["x"], float))))
+        return ok, str(stats.get("return_status", "?")), sol
 
     @property
     def warm_duals(self) -> bool:
@@ -407,8 +407,9 @@ class NmpcCbf(ControllerBase):
         if ok:
             w = np.asarray(sol["x"], float).ravel()
             self._w = w
-            self._lam_x = np.asarray(sol["lam_x"], float).ravel()
-            self._lam_g = np.asarray(sol["lam_g"], float).ravel()
+            if self.warm_duals:
+                self._lam_x = np.asarray(sol["lam_x"], float).ravel()
+                self._lam_g = np.asarray(sol["lam_g"], float).ravel()
             self._since_solve = 0
             self.plan_states, self.plan_controls, self.plan_slack = self._unpack(w)
             u = self.plan_controls[0].copy()

@@ -121,7 +121,8 @@ class NmpcRti(NmpcCbf):
             ou = o + nx
             idx_u = U(k) + Sl(k)
             Hq[ou:ou + nu, ou:ou + nu] = H[idx_u, idx_u]
-            Hq[o:o + 6, ou:ou + nu] = H[X(k), idx_u]
+            Hq[o:o + 6, ou:ou + nu] = H[X(k), idx_u]                         # S_k, both triangles
+            Hq[ou:ou + nu, o:o + 6] = H[idx_u, X(k)]
             gq[ou:ou + nu] = grad[idx_u]
             lbv[ou:ou + nu] = np.maximum(lbx[idx_u], -BIG) - w[idx_u]
             ubv[ou:ou + nu] = np.minimum(ubx[idx_u], BIG) - w[idx_u]
@@ -148,7 +149,13 @@ class NmpcRti(NmpcCbf):
             shift = -g[c_rows] + J1 @ F_k
             lba[rc:rc + S * nd] = np.maximum(lbg[c_rows], -BIG) + shift
             uba[rc:rc + S * nd] = np.minimum(ubg[c_rows], BIG) + shift
-        self._layout = (nx, nu, xo)
+        # where each entry of the NLP's w sits in the QP's stage-ordered v: dw = v[self._w_in_v]
+        w_in_v = np.empty(nX + nU + S * N, dtype=np.int64)
+        for k in range(N + 1):
+            w_in_v[X(k)] = xo(k) + np.arange(6)
+            if k < N:
+                w_in_v[U(k) + Sl(k)] = xo(k) + nx + np.arange(nu)
+        self._w_in_v = w_in_v
         fn = ca.Function("nmpc_rti_qp", [w, p], [Hq, gq, Aq, lba, uba, lbv, ubv])
         conic = ca.conic("nmpc_rti_hpipm", "hpipm", {"h": Hq.sparsity(), "a": Aq.sparsity()},
                          {"N": N, "nx": [nx] * (N + 1), "nu": [nu] * N + [0], "ng": [ng] * N + [0],
@@ -175,16 +182,7 @@ class NmpcRti(NmpcCbf):
         v = np.asarray(sol["x"], float).ravel()
         if not (bool(stats.get("success", False)) and np.all(np.isfinite(v))):
             return False, f"HPIPM {status}", None
-        nx, nu, xo = self._layout
-        N, nX, nU = self.N, self._nX, self._nU
-        dw = np.zeros_like(w0)
-        for k in range(N + 1):
-            dw[6 * k:6 * k + 6] = v[xo(k):xo(k) + 6]
-            if k < N:
-                ou = xo(k) + nx
-                dw[nX + 2 * k:nX + 2 * k + 2] = v[ou:ou + 2]
-                dw[nX + nU + self.S * k:nX + nU + self.S * (k + 1)] = v[ou + 2:ou + nu]
-        return True, f"rti ({status}, {stats.get('iter_count', '?')} HPIPM iterations)", {"x": w0 + dw, "lam_x": np.zeros_like(w0), "lam_g": np.zeros(len(args["lbg"]))}
+        return True, f"rti ({status}, {stats.get('iter_count', '?')} HPIPM iterations)", {"x": w0 + v[self._w_in_v]}
 
     @property
     def warm_duals(self) -> bool:

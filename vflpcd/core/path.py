@@ -183,8 +183,7 @@ class ReferencePath:
         else:
             lo, span = s_hint - back, back + ahead
             starts, ends = self.s[:-1], self.s[1:]
-            if self.closed and span < self.length:
-                # segments that overlap [lo, lo + span] modulo the length
+            if span < self.length:            # a closed path: segments overlapping [lo, lo + span] modulo the length
                 rel_start = np.mod(starts - lo, self.length)
                 rel_end = np.mod(ends - lo, self.length)
                 idx = np.nonzero((rel_start <= span) | (rel_end <= span) | (rel_end < rel_start))[0]

@@ -133,6 +133,10 @@ class EbRHRL:
         self.M_inv = np.linalg.inv(M)                                   # (N, n_u, n_u)
         self.loop = loop
         self._closed = None
+        T = self.N + 1                   # the compiled loop's arguments when no barrier is on
+        self._no_barrier = (np.zeros(1, np.int64), np.zeros((T, 1)), np.zeros((0, T, 1)), np.zeros((0, T, 1)),
+                            np.zeros(0), 1.0)
+        self._R2 = 2.0 * self.R
         self.reset()
 
     @property
@@ -230,16 +234,15 @@ class EbRHRL:
     def _solve_compiled(self, problem: HorizonProblem, barrier: HorizonBarrier | None) -> tuple[np.ndarray, SolveInfo]:
         """``solve`` by the compiled ``ebrhrl_kernel.solve_loop`` (the same iterations)."""
         f = self.features
-        if barrier is not None and barrier.count:
-            pos, p_ref, x_p, normal, mu, length = (np.ascontiguousarray(barrier.pos_index, np.int64), barrier.p_ref,
-                                                   barrier.x_p, barrier.normal, barrier.mu, barrier.length)
-        else:
-            pos, p_ref, x_p, normal, mu, length = (np.zeros(1, np.int64), np.zeros((self.N + 1, 1)),
-                                                   np.zeros((0, self.N + 1, 1)), np.zeros((0, self.N + 1, 1)),
-                                                   np.zeros(0), 1.0)
         c = np.ascontiguousarray
+        if barrier is not None and barrier.count:
+            pos, p_ref, x_p, normal, mu, length = (c(barrier.pos_index, np.int64), c(barrier.p_ref, float),
+                                                   c(barrier.x_p, float), c(barrier.normal, float),
+                                                   c(barrier.mu, float), float(barrier.length))
+        else:
+            pos, p_ref, x_p, normal, mu, length = self._no_barrier
         target, iterations, eps_a, eps_c = self.loop(
-            c(self.closed_loop(problem)), c(problem.B), c(problem.c), c(problem.x0), self.K, self.Q, 2.0 * self.R,
-            self.P, self.M_inv, self.gamma, self.W_a, self.W_c, f._a, f._b, f._h, pos, c(p_ref, float),
-            c(x_p, float), c(normal, float), c(mu, float), float(length), self.eta_a, self.i_max, self.tol, PHI_FLOOR)
+            self.closed_loop(problem), c(problem.B), c(problem.c), c(problem.x0), self.K, self.Q, self._R2,
+            self.P, self.M_inv, self.gamma, self.W_a, self.W_c, f._a, f._b, f._h, pos, p_ref,
+            x_p, normal, mu, length, self.eta_a, self.i_max, self.tol, PHI_FLOOR)
         return target, SolveInfo(int(iterations), bool(eps_a <= self.tol), float(eps_a), float(eps_c))

@@ -30,6 +30,8 @@ def solve_loop(A_cl, B, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh,
     grad_h = np.zeros((N + 1, n))
     target = np.empty((N, n_u))
     BW = np.empty((N, n, m))
+    inv = np.empty(N + 1)                     # 1 / max(||Phi_tau||^2, phi_floor), the normalised steps
+    g = np.empty(n_u)
     eta, eps_a_prev, eps_a, eps_c = eta_a, np.inf, np.inf, np.inf
     iterations = 0
     for it in range(1, i_max + 1):
@@ -103,7 +105,7 @@ def solve_loop(A_cl, B, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh,
             norm = 0.0
             for j in range(m):
                 norm += phi[k, j] * phi[k, j]
-            inv = 1.0 / max(norm, phi_floor)
+            inv[k] = 1.0 / max(norm, phi_floor)
             e2 = 0.0
             for i in range(n):
                 s = 0.0
@@ -112,10 +114,9 @@ def solve_loop(A_cl, B, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh,
                 e = lam[k, i] - s
                 e2 += e * e
                 for j in range(m):
-                    W_c[k, j, i] += phi[k, j] * inv * e
+                    W_c[k, j, i] += phi[k, j] * inv[k] * e
             eps_c = max(eps_c, 0.5 * e2)
         for k in range(N):
-            g = np.empty(n_u)
             for v in range(n_u):
                 s = 0.0
                 for w in range(n_u):
@@ -134,13 +135,9 @@ def solve_loop(A_cl, B, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh,
         if eps_a > eps_a_prev:          # the last step overshot (barrier curvature): halve the next
             eta *= 0.5
         for k in range(N):
-            norm = 0.0
-            for j in range(m):
-                norm += phi[k, j] * phi[k, j]
-            inv = 1.0 / max(norm, phi_floor)
             for j in range(m):
                 for v in range(n_u):
-                    W_a[k, j, v] += eta * phi[k, j] * inv * (target[k, v] - u[k, v])
+                    W_a[k, j, v] += eta * phi[k, j] * inv[k] * (target[k, v] - u[k, v])
         eps_a_prev = eps_a
         if eps_a <= tol or not np.isfinite(eps_a):
             break

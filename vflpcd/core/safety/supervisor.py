@@ -205,11 +205,19 @@ class Supervisor:
         crossing = arrays.moving & (across > along)
         if not crossing.any():
             return static, mover
-        wait = times[-1] + np.linspace(0.0, self.cfg.mover_wait_s, 9)[1:]
-        standing = (np.repeat(pos[-1:], len(wait), axis=0), np.full(len(wait), yaw[-1]), wait)
-        _, (cw, ww) = self._clearances(*standing, arrays.subset(crossing) if not crossing.all() else arrays,
+        _, (cw, ww) = self._clearances(*self._standing(pos, yaw, times, with_stop=False),
+                                       arrays.subset(crossing) if not crossing.all() else arrays,
                                        movers_only=True, behind=True)
         return static, (cw, ww) if cw < mover[0] else mover
+
+    def _standing(self, pos: np.ndarray, yaw: np.ndarray, times: np.ndarray, with_stop: bool):
+        """The body standing where the stop (pos (K, d), yaw (K,), times (K,)) ends, for ``mover_wait_s``
+        after it: 8 poses (pos, yaw, times), preceded by the stop's own with ``with_stop``."""
+        wait = times[-1] + np.linspace(0.0, self.cfg.mover_wait_s, 9)[1:]
+        still = (np.repeat(pos[-1:], len(wait), axis=0), np.full(len(wait), yaw[-1]), wait)
+        if not with_stop:
+            return still
+        return np.vstack([pos, still[0]]), np.concatenate([yaw, still[1]]), np.concatenate([times, wait])
 
     def _alternative_stops(self, state: np.ndarray, u: np.ndarray) -> list:
         """Other stops after "u for the reaction time" that the emergency manoeuvre can take (poses,
@@ -296,10 +304,7 @@ class Supervisor:
         arrays = ObstacleArrays.of(obstacles, self.DIM)
         if not arrays.moving.any():
             return ""
-        pos, yaw, times = self._poses(state, self._brake_command(state), True)
-        wait = times[-1] + np.linspace(0.0, self.cfg.mover_wait_s, 9)[1:]     # then standing there
-        pos = np.vstack([pos, np.repeat(pos[-1:], len(wait), axis=0)])
-        yaw, times = np.concatenate([yaw, np.full(len(wait), yaw[-1])]), np.concatenate([times, wait])
+        pos, yaw, times = self._standing(*self._poses(state, self._brake_command(state), True), with_stop=True)
         _, (cm, who) = self._clearances(pos, yaw, t + times, arrays, movers_only=True, behind=True)
         if cm >= self.cfg.margin:
             return ""
