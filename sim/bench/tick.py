@@ -33,7 +33,7 @@ from vflpcd.controllers import make_controller
 PLATFORMS = (("vehicle", "carsim_avoidance"), ("quadrotor", "uav_3d"))
 #: phase name -> (attribute path of the controller method that does it)
 PHASES = (("inputs", "_inputs"), ("guidance check", "_guidance"), ("reference", "_reference"),
-          ("lift", "errors.frame"), ("error model", "errors.problem"), ("barrier", "_barrier"), ("solve", "_solve"))
+          ("lift", "errors.frame"), ("error model", "errors.problem"), ("barrier", "_barrier"), ("solve", "_solve_with"))
 RATE_PHASE = "error model"      # the increment form of the problem (each mode's RateForm.problem)
 REST = "clip, shift, GP sample"
 SCALING = ((0, 0), (10, 0), (20, 0), (40, 0), (10, 2), (10, 4), (10, 8), (40, 8))
@@ -70,7 +70,8 @@ def timed_phases(controller) -> dict[str, list[float]]:
         if owner is not None and hasattr(owner, name):
             setattr(owner, name, wrap(getattr(owner, name), phase))
             ticks.setdefault(phase, [])
-    for mode in (getattr(controller, "_cruise_mode", None), getattr(controller, "_threat_mode", None)):
+    for mode in (getattr(controller, "_cruise_mode", None), getattr(controller, "_threat_mode", None),
+                 getattr(controller, "_light_mode", None)):
         if mode is not None and mode[0] is not None:            # (RateForm, solver); frozen, so set directly
             object.__setattr__(mode[0], "problem", wrap(mode[0].problem, RATE_PHASE))
     step = controller.step

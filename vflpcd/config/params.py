@@ -56,7 +56,8 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
     cost, hor, sol = root.table("cost"), root.table("horizon"), root.table("solver")
     feat, bar, rep = root.table("features"), root.table("barrier"), root.table("replan")
     cost.check_known({"q_ground", "r_ground", "r_rate_ground", "q_aerial", "r_aerial", "r_rate_aerial", "q_lift",
-                      "gamma", "r_rate_threat_ground", "r_rate_threat_aerial"})
+                      "gamma", "r_rate_threat_ground", "r_rate_threat_aerial",
+                      "r_rate_light_ground", "r_rate_light_aerial", "light_hold"})
     hor.check_known({"seconds"})
     sol.check_known({"i_max", "tol", "eta_a", "divergence"})
     feat.check_known({"error_std_ground", "error_std_aerial", "samples", "size", "nu", "ell_factor", "seed"})
@@ -74,6 +75,10 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
     key = f"r_rate_threat_{platform}"
     r_threat = cost.vector(key, len(r)) if cost.has(key) else None
     if r_threat is not None and (r_rate is None or np.any(r_threat <= 0)):
+        raise cost.error(key, f"increment weights must be > 0, and r_rate_{platform} must be given too")
+    key = f"r_rate_light_{platform}"
+    r_light = cost.vector(key, len(r)) if cost.has(key) else None
+    if r_light is not None and (r_rate is None or np.any(r_light <= 0)):
         raise cost.error(key, f"increment weights must be > 0, and r_rate_{platform} must be given too")
     gamma = cost.number("gamma", min=0.0)
     if not (0.0 < gamma <= 1.0):
@@ -105,4 +110,6 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
                gp_bounds=tuple(_bounds(comp, k, d) for k, d in (("sf2_bounds", (1e-6, 0.1)), ("ell_bounds", (0.3, 10.0)),
                                                                  ("sn2_bounds", (1e-6, 1e-3)))),
                R_rate=None if r_rate is None else np.diag(r_rate),
-               R_rate_threat=None if r_threat is None else np.diag(r_threat))
+               R_rate_threat=None if r_threat is None else np.diag(r_threat),
+               R_rate_light=None if r_light is None else np.diag(r_light),
+               light_hold=cost.number("light_hold", 2.0, min=0.0))

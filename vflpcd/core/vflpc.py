@@ -53,6 +53,8 @@ from vflpcd.core.ports import ControllerBase, ControllerStatus
 
 log = logging.getLogger("vflpcd.core.vflpc")
 
+COURSE_MIN_SPEED = 0.5   # m/s: below it a replan leaves along the yaw (the course of a slow body is noise)
+
 
 @dataclass(frozen=True)
 class ReplanJob:
@@ -139,6 +141,8 @@ class VFLPCParams:
     refit_min_samples: int = 60
     R_rate: np.ndarray | None = None
     R_rate_threat: np.ndarray | None = None
+    R_rate_light: np.ndarray | None = None
+    light_hold: float = 2.0
     gp_channels: tuple[str, ...] = ("vx", "vy", "omega")
     gp_ell: float = 3.0
     gp_sf2: float = 0.05
@@ -225,6 +229,7 @@ class VFLPC(ControllerBase):
                                       gp_jacobians=params.gp_linearisation == "gp")
         self.rate = None
         self._threat_mode = None      # (rate form, solver) while a mover is in E_p (R_rate_threat)
+        self._light_mode = None       # (rate form, solver) while its plans keep the rate limit (R_rate_light)
         if solver is None:
             u_std = None
             A, B, Q, R, P = em.A, em.B, em.Q, em.R, em.P
@@ -237,10 +242,14 @@ class VFLPC(ControllerBase):
                                 params.nu, params.ell_factor, params.seed, u_std)
             solver = EbRHRL(A, B, Q, R, P, em.gamma, feats, self.N, params.eta_a, params.i_max, params.tol,
                             loop=solve_loop)
+            def mode(R_rate):
+                rf = RateForm.of(em.A, em.B, em.Q, em.R, R_rate, em.gamma)
+                return rf, EbRHRL(rf.A, rf.B, rf.Q, rf.R, rf.P, em.gamma, feats, self.N, params.eta_a,
+                                  params.i_max, params.tol, loop=solve_loop)
             if self.rate is not None and params.R_rate_threat is not None:
-                rt = RateForm.of(em.A, em.B, em.Q, em.R, params.R_rate_threat, em.gamma)
-                self._threat_mode = (rt, EbRHRL(rt.A, rt.B, rt.Q, rt.R, rt.P, em.gamma, feats, self.N, params.eta_a,
-                                                params.i_max, params.tol, loop=solve_loop))
+                self._threat_mode = mode(params.R_rate_threat)
+            if self.rate is not None and params.R_rate_light is not None:
+                self._light_mode = mode(params.R_rate_light)
         self.solver, self.compensator = solver, compensator
         self._cruise_mode = (self.rate, solver)
         self.plan_gate = None          # set by the safety guard (vflpcd.core.safety): refuses undrivable replans
@@ -250,10 +259,13 @@ class VFLPC(ControllerBase):
 
     # ------------------------------------------------------------------ protocol
     def reset(self) -> None:
-        if self._threat_mode is not None:
-            self._threat_mode[1].reset()
-            self.rate, self.solver = self._cruise_mode
+        for m in (self._threat_mode, self._light_mode):
+            if m is not None:
+                m[1].reset()
+        self.rate, self.solver = self._cruise_mode
         self._threatened = False
+        self._heavy_until = -np.inf     # the light mode is left until then (its last plan broke the rate limit)
+        self._light = False
         self.solver.reset()
         self._plan = None
         self._ends_path = False
@@ -300,8 +312,7 @@ class VFLPC(ControllerBase):
         barrier = self._barrier(frame, p_ref_world, pos, vel, t, obstacles)
         self._select_mode()
         if self.rate is not None:
-            increment = self.rate.problem(problem)
-            u_tilde0 = self.rate.deviation(increment.x0, self._solve(increment, barrier, self.rate.K_terminal))
+            u_tilde0 = self._solve_increments(problem, barrier, t)
         else:
             u_tilde0 = self._solve(problem, barrier, self.errors.K_terminal)
         u = problem.u_ref[0] + u_tilde0
@@ -427,6 +438,17 @@ class VFLPC(ControllerBase):
         self._last_inputs = (pos, vel, heading, obstacles)
         return state, obstacles, pos, vel
 
+    def _course(self, state: np.ndarray, vel: np.ndarray) -> float:
+        """The direction a replan leaves the body along: its velocity's (the course angle) when it
+        moves forward, else its yaw. In a bend the body slips (v_y != 0): a plan leaving along the yaw
+        would bend back onto the course within its first metres, a curvature blip that the speed plan
+        answers with a dip."""
+        psi = float(state[self.errors.layout.heading])
+        speed = float(np.hypot(vel[0], vel[1]))
+        if speed < COURSE_MIN_SPEED or float(np.dot(vel, [np.cos(psi), np.sin(psi)])) <= 0.0:
+            return psi
+        return float(np.arctan2(vel[1], vel[0]))
+
     def _position(self, state: np.ndarray) -> np.ndarray:
         return state[list(self.errors.layout.position)]
 
@@ -460,7 +482,7 @@ class VFLPC(ControllerBase):
             not finished and left < self.N * self.dt + self.params.end_margin)
         if not due:
             return
-        heading = float(state[self.errors.layout.heading]) if self.dim == 2 else None
+        heading = self._course(state, vel) if self.dim == 2 else None
         job = ReplanJob(self._s, pos, vel, heading, t, obstacles)
         if plan is None:
             self.install_plan(job, plan_job(self.planner, job))   # no reference yet: plan at once
@@ -504,6 +526,40 @@ class VFLPC(ControllerBase):
         self.rate, self.solver = self._threat_mode if threatened else self._cruise_mode
         self.solver.reset()
 
+    def _solve_increments(self, problem: HorizonProblem, barrier: HorizonBarrier, t: float) -> np.ndarray:
+        """u~_0 from the increment form of ``problem`` (rate.py) in the tick's mode. Cruising with
+        ``R_rate_light`` given, the light weights are tried first: their plan is kept when every
+        planned step stays within the actuator's rate limit; a plan that breaks it is solved again
+        with ``R_rate`` and the light weights are left for ``light_hold`` s. The light weights track
+        tightly where the reference asks for gentle steering; the heavy ones keep a solver that has
+        no constraints from asking for steps the actuator cannot make (rate.py: the loop then
+        oscillates behind the rate clip)."""
+        light = self._light_mode is not None and not self._threatened and t >= self._heavy_until
+        if light:
+            rate, solver = self._light_mode
+            if not self._light:
+                solver.reset()
+            increment = rate.problem(problem)
+            v = self._solve_with(solver, increment, barrier)
+            if v is not None and self._keeps_rate(problem, v):
+                self._light = True
+                return rate.deviation(increment.x0, v[0])
+            self._heavy_until = t + self.params.light_hold
+        if self._light:                # back on the heavy weights: their solver starts afresh
+            self.solver.reset()
+            self._light = False
+        increment = self.rate.problem(problem)
+        v = self._solve_with(self.solver, increment, barrier)
+        return self.rate.deviation(increment.x0, v[0] if v is not None else -self.rate.K_terminal @ increment.x0)
+
+    def _keeps_rate(self, problem: HorizonProblem, v: np.ndarray) -> bool:
+        """Whether the planned increments v (N, n_u) of u~ move the command u = u_r + u~ by at most
+        the rate limit du_max at every step (u~_{-1} = u_prev - u_r,0, so step 0 moves it by v_0)."""
+        du = v.copy()
+        du[1:] += np.diff(problem.u_ref, axis=0)
+        limited = np.isfinite(self.limits.du_max)
+        return bool(np.all(np.abs(du[:, limited]) <= self.limits.du_max[limited] * (1.0 + 1e-9)))
+
     def _barrier(self, frame: TickFrame, p_world: np.ndarray, pos, vel, t: float, obstacles) -> HorizonBarrier:
         self.last_threats = ()
         idx = np.array(self.errors.layout.position)
@@ -532,19 +588,25 @@ class VFLPC(ControllerBase):
 
     def _solve(self, problem: HorizonProblem, barrier: HorizonBarrier, K_terminal: np.ndarray) -> np.ndarray:
         """The solver's first input of ``problem``; the terminal LQR law -K_terminal x0 on failure."""
+        u_tilde = self._solve_with(self.solver, problem, barrier)
+        return u_tilde[0] if u_tilde is not None else -K_terminal @ problem.x0
+
+    def _solve_with(self, solver, problem: HorizonProblem, barrier: HorizonBarrier) -> np.ndarray | None:
+        """``solver``'s plan u~ (N, n_u) of ``problem``; None (counted in ``fallbacks``, the solver
+        reset) when it fails or diverges."""
         span = self.limits.u_max - self.limits.u_min
         bound = self.params.divergence * np.where(np.isfinite(span), span, 1e6)
         try:
-            u_tilde, info = self.solver.solve(problem, barrier)
+            u_tilde, info = solver.solve(problem, barrier)
             self.last_info = info
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             log.warning("event=solver_error reason=%s", exc)
             u_tilde = None
         if u_tilde is None or not np.all(np.isfinite(u_tilde[0])) or np.any(np.abs(u_tilde[0]) > bound):
             self.fallbacks += 1
-            self.solver.reset()
-            return -K_terminal @ problem.x0
-        return u_tilde[0]
+            solver.reset()
+            return None
+        return u_tilde
 
     def _observe(self, frame: TickFrame) -> None:
         """Offer the last transition (previous lifted state, applied command, current state in the

@@ -84,9 +84,13 @@ def step_times(s: np.ndarray, v: np.ndarray, t0: float, beta: float) -> np.ndarr
 
 def smooth_path(raw: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian smoothing of a polyline (K, d) with std sigma (samples) that keeps its first point:
-    the offset smoothing makes there fades out linearly over 3 sigma samples."""
+    the offset smoothing makes there fades out over 3 sigma samples along the quintic smoothstep
+    1 - (10 x^3 - 15 x^4 + 6 x^5), whose first and second derivatives vanish at both ends, so the
+    fade adds no kink and no curvature step where it ends (a linear fade did: a one-sample
+    curvature dip that the timed reference turned into a yaw-rate spike)."""
     from scipy.ndimage import gaussian_filter1d
 
     xy = gaussian_filter1d(raw, sigma=max(sigma, 1e-6), axis=0, mode="nearest")
-    fade = np.clip(1.0 - np.arange(len(xy)) / max(3.0 * sigma, 1.0), 0.0, 1.0)
+    x = np.clip(np.arange(len(xy)) / max(3.0 * sigma, 1.0), 0.0, 1.0)
+    fade = 1.0 - x ** 3 * (10.0 - 15.0 * x + 6.0 * x ** 2)
     return xy + fade[:, None] * (raw[0] - xy[0])

@@ -151,3 +151,57 @@ def test_the_refits_hyperparameter_bounds_come_from_the_config(straight):
         vflpc_params(_table({"compensation": {"ell_bounds": [10.0, 0.3]}}), "ground")
     with pytest.raises(ConfigError, match="sf2_bounds"):
         vflpc_params(_table({"compensation": {"sf2_bounds": [0.0, 0.1]}}), "ground")
+
+
+def test_light_weights_while_their_plans_keep_the_rate_limit(straight):
+    """On the straight the light increment weights plan steps within the steering rate and are
+    kept; a plan that breaks the rate limit is solved again with the cruise weights, which then
+    stay for light_hold seconds."""
+    ctrl = make_vflpc(straight)
+    plant = make_plant(straight, 0)
+    light_solver = ctrl._light_mode[1]
+    assert ctrl.params.R_rate_light[1, 1] < ctrl.params.R_rate[1, 1]
+    for k in range(40):
+        u = ctrl.step(plant.state, k * DT)
+        plant.step(u, DT)
+    assert ctrl._light and np.all(np.isfinite(u))
+    broken = {"calls": 0}
+    real = light_solver.solve
+
+    def too_fast(problem, barrier):        # a light plan asking for a steering step of 0.1 rad
+        broken["calls"] += 1
+        v, info = real(problem, barrier)
+        v = v.copy()
+        v[3, 1] += 0.1
+        return v, info
+
+    light_solver.solve = too_fast
+    t = 40 * DT
+    ctrl.step(plant.state, t)
+    assert broken["calls"] == 1 and not ctrl._light and ctrl._heavy_until == pytest.approx(t + ctrl.params.light_hold)
+    ctrl.step(plant.state, t + DT)            # within the hold the light weights are not tried
+    assert broken["calls"] == 1 and not ctrl._light
+    light_solver.solve = real
+    ctrl.step(plant.state, t + ctrl.params.light_hold + DT)
+    assert ctrl._light
+
+
+def test_light_weights_need_the_cruise_weights():
+    with pytest.raises(ConfigError, match="r_rate_light_ground"):
+        vflpc_params(_table({"cost": {"r_rate_ground": None, "r_rate_threat_ground": None}}), "ground")
+    with pytest.raises(ConfigError, match="r_rate_light_ground"):
+        vflpc_params(_table({"cost": {"r_rate_light_ground": [300.0, 0.0]}}), "ground")
+
+
+def test_a_replan_leaves_along_the_course_of_a_slipping_body(straight):
+    """In a bend the body slips (v_y != 0): the replan starts along its velocity, not its yaw; at
+    walking pace or backwards, along its yaw."""
+    ctrl = make_vflpc(straight)
+    names = ctrl.model.state_names
+    x = np.zeros(len(names))
+    x[names.index("psi")], x[names.index("vx")], x[names.index("vy")] = 0.1, 6.0, -0.3
+    assert ctrl._course(x, ctrl._velocity(x)) == pytest.approx(0.1 + np.arctan2(-0.3, 6.0))
+    x[names.index("vx")], x[names.index("vy")] = 0.2, 0.1
+    assert ctrl._course(x, ctrl._velocity(x)) == pytest.approx(0.1)
+    x[names.index("vx")] = -2.0
+    assert ctrl._course(x, ctrl._velocity(x)) == pytest.approx(0.1)

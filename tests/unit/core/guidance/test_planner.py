@@ -305,3 +305,21 @@ def test_smoothing_keeps_a_bend_of_the_path_and_a_plan_that_starts_on_it_stays_o
     assert abs(np.mean(cut[10:-10])) > 0.8 * params.smoothing ** 2 / (2.0 * radius)
     kappa = turn_curvature(plan.xy[5:-5])
     assert np.all(np.abs(kappa[1:-1] - 1.0 / radius) < 0.5 / radius)
+
+
+@pytest.mark.parametrize("offset, limit", [(0.0, 0.01), (0.05, 0.02), (0.3, 0.1)])
+def test_a_plan_that_starts_beside_its_path_has_no_yaw_rate_spike_where_the_smoothing_fades(params, offset, limit):
+    """A plan from ``offset`` m beside an 18 m arc: the start offset that the smoothing keeps fades
+    out along a C2 smoothstep, so the timed reference's yaw rate has no one-sample spike (with a
+    linear fade the points had a kink there: spikes of 0.05, 0.045 and 0.79 rad/s for these
+    offsets; the limits here are a fifth to a half of them)."""
+    radius = 18.0
+    path = ReferencePath.arc([0.0, radius], radius, -np.pi / 2, np.pi / 2)
+    planner = GuidancePlanner(path, params, 6.0, 3.0, 1.0, 0.05)
+    s0 = 10.0
+    h = float(path.heading_at(s0))
+    start = path.point_at(s0) + offset * np.array([-np.sin(h), np.cos(h)])
+    plan = planner.plan(planner.prepare(s0, []), start, 0.0, 6.0, heading=h)
+    omega = plan.trajectory.omega[:60]
+    spike = np.abs(omega[1:-1] - 0.5 * (omega[:-2] + omega[2:]))
+    assert np.max(spike) < limit, np.round(omega, 3)
