@@ -92,7 +92,7 @@ def read_bytes(path: str | Path, limit: int = TEXT_MAX_BYTES) -> bytes:
             data = fh.read(limit + 1)
         except OSError as exc:
             raise ConfigError(path, FILE_FIELD, f"cannot read ({_reason(exc)})") from None
-    if len(data) > limit:                           # it grew while it was read
+    if len(data) > limit:                           # it grew, or its size was not its length (/proc)
         raise ConfigError(path, FILE_FIELD, f"too large (more than {limit} bytes)")
     return data
 

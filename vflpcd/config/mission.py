@@ -16,7 +16,6 @@ from vflpcd.daemon.config import EXECUTORS, MAX_RATE_HZ, FailsafePolicy, LoopCon
 from vflpcd.daemon.telemetry import TelemetryConfig, check_vehicle_id
 from vflpcd.base.errors import ConfigError
 from vflpcd.base.paths import config_dir
-from vflpcd.config.safety import safety_settings
 from vflpcd.base.inputfile import read_text
 from vflpcd.base.tomlread import Table, parse_toml
 
@@ -53,11 +52,12 @@ class Mission:
 
 def load_mission(path: str | Path) -> Mission:
     """Read and validate a mission; raises ConfigError naming the file and the field."""
-    from vflpcd.config.scenarios import load_scenario
-
     file = Path(path)
     text = read_text(file)
     root = Table(parse_toml(text, file), file)
+    from vflpcd.config.safety import safety_settings    # with scipy: once there is a mission to check
+    from vflpcd.config.scenarios import load_scenario
+
     root.check_known({"vehicle_id", "description", "platform", "route", "controller", "loop", "workers",
                       "telemetry", "failsafe", "safety", "log"})
     vehicle_id = root.string("vehicle_id")
