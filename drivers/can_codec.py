@@ -22,11 +22,13 @@ from pathlib import Path
 import can
 import cantools
 
+from vflpcd.base.inputfile import read_text
 from vflpcd.base.paths import config_dir
 
 FRAME_ERRORS = ("unknown_id", "dlc", "checksum", "range", "counter")
 COUNTER_MODULO = 16
 MODES = {0: "manual", 1: "ready", 2: "automatic", 3: "braking", 4: "stopped"}
+DBC_ENCODING = "cp1252"         # the DBC format's text encoding (cantools' and the CAN tools' default)
 
 
 def default_dbc() -> Path:
@@ -56,12 +58,15 @@ class Frame:
 
 
 class VehicleCan:
-    """The database and its codec. ``dbc``: the file (default ``config/can/vehicle.dbc``)."""
+    """The database and its codec. ``dbc``: the file (default ``config/can/vehicle.dbc``), read
+    by ``vflpcd.base.inputfile`` (ConfigError on a file that cannot be read); cantools raises its
+    own errors on one that does not parse."""
 
     def __init__(self, dbc: str | Path | None = None) -> None:
         path = Path(dbc) if dbc is not None else default_dbc()
         self.path = path
-        self.db = cantools.database.load_file(path, strict=True)
+        self.db = cantools.database.load_string(read_text(path, encoding=DBC_ENCODING), database_format="dbc",
+                                                strict=True)
         self._by_id = {m.frame_id: m for m in self.db.messages}
 
     def message(self, name: str):

@@ -232,9 +232,10 @@ def cmd_run(args) -> int:
 
 def cmd_check(args) -> int:
     from vflpcd.config.mission import build_controller, load_mission
-    from vflpcd.app.run import build_platform
 
     mission = load_mission(args.mission)
+    from vflpcd.app.run import build_platform
+
     controller = build_controller(mission)
     build_platform(mission)
     print(f"{mission.file}: ok: vehicle {mission.vehicle_id}, {mission.platform.kind} platform, route "

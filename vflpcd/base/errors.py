@@ -20,7 +20,15 @@ class ConfigError(ValueError):
         self.file = str(file) if file is not None else "<input>"
         self.field = field
         self.message = message
-        super().__init__(f"{self.file}: {field}: {message}")
+        super().__init__(_one_line(f"{self.file}: {field}: {message}"))
+
+
+_LINE_BREAKS = {ord(c): repr(c)[1:-1] for c in "\n\r\v\f\x1c\x1d\x1e\x85\u2028\u2029"}   # str.splitlines()'s
+
+
+def _one_line(text: str) -> str:
+    """Line breaks (in a file name, in a parser's message) written as escapes."""
+    return text.translate(_LINE_BREAKS)
 
 
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s %(message)s"   # one line per event, to stderr

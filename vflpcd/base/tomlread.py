@@ -14,24 +14,27 @@ from typing import Any
 import numpy as np
 
 from vflpcd.base.errors import ConfigError
+from vflpcd.base.inputfile import SYNTAX_FIELD, check_depth, read_text
 
 _MISSING = object()
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Parse a TOML file; a missing file or a syntax error becomes a ConfigError."""
-    path = Path(path)
+    """Parse a TOML file (read by ``vflpcd.base.inputfile``: a regular file of at most
+    ``TEXT_MAX_BYTES``); every reading or syntax error becomes a ConfigError."""
+    return parse_toml(read_text(path), path)
+
+
+def parse_toml(text: str, file: str | Path | None) -> dict[str, Any]:
+    """Parse TOML text read from ``file``, nested at most ``MAX_DEPTH`` deep; a syntax error
+    becomes a ConfigError."""
+    check_depth(text, file)
     try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(path, "<file>", "file not found") from None
-    except OSError as exc:
-        raise ConfigError(path, "<file>", f"cannot read ({exc.strerror or exc})") from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError(path, "<syntax>", f"not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(path, "<syntax>", f"not valid TOML ({exc})") from None
+        raise ConfigError(file, SYNTAX_FIELD, f"not valid TOML ({exc})") from None
+    except RecursionError:
+        raise ConfigError(file, SYNTAX_FIELD, "not valid TOML (nested too deeply)") from None
 
 
 def load_table(path: str | Path) -> "Table":

@@ -37,6 +37,7 @@ from typing import Sequence
 import numpy as np
 
 from vflpcd.base.errors import ConfigError
+from vflpcd.base.inputfile import MODEL_MAX_BYTES, open_npz, parse_json
 from vflpcd.base.npzfile import write_npz
 from vflpcd.core.dynamics.koopman import ACTIVATION, KoopmanModel
 
@@ -125,23 +126,14 @@ def load_koopman(path: str | Path, state_names: Sequence[str] | None = None,
     key, message) on a missing file or key, a bad shape, a non-finite value, inconsistent
     sizes, a layout mismatch or a constant row of A / B that is not the constant observable's."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "file not found")
-    try:
-        npz = np.load(path, allow_pickle=False)
-    except Exception as exc:
-        raise ConfigError(path, "<file>", f"not a readable NumPy .npz archive ({type(exc).__name__})") from None
-    with npz:
+    with open_npz(path, MODEL_MAX_BYTES) as npz:
         for key in _ARRAY_KEYS:
             if key not in npz.files:
                 raise ConfigError(path, key, f"missing required array (have: {', '.join(sorted(npz.files))})")
         raw = _array(npz, path, "metadata")
         if raw.shape != () or raw.dtype.kind not in "US":
             raise ConfigError(path, "metadata", "expected a JSON string")
-        try:
-            meta = json.loads(str(raw))
-        except json.JSONDecodeError as exc:
-            raise ConfigError(path, "metadata", f"not valid JSON ({exc.msg})") from None
+        meta = parse_json(str(raw), path, "metadata")
         if not isinstance(meta, dict):
             raise ConfigError(path, "metadata", "expected a JSON object")
         for key in _META_KEYS:

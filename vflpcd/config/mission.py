@@ -16,8 +16,8 @@ from vflpcd.daemon.config import EXECUTORS, MAX_RATE_HZ, FailsafePolicy, LoopCon
 from vflpcd.daemon.telemetry import TelemetryConfig, check_vehicle_id
 from vflpcd.base.errors import ConfigError
 from vflpcd.base.paths import config_dir
-from vflpcd.config.safety import safety_settings
-from vflpcd.base.tomlread import Table, load_table
+from vflpcd.base.inputfile import read_text
+from vflpcd.base.tomlread import Table, parse_toml
 
 PLATFORM_KINDS = {"inproc": ("ground", "aerial"), "mavlink": ("aerial",), "can": ("ground",)}
 
@@ -52,10 +52,12 @@ class Mission:
 
 def load_mission(path: str | Path) -> Mission:
     """Read and validate a mission; raises ConfigError naming the file and the field."""
+    file = Path(path)
+    text = read_text(file)
+    root = Table(parse_toml(text, file), file)
+    from vflpcd.config.safety import safety_settings    # with scipy: once there is a mission to check
     from vflpcd.config.scenarios import load_scenario
 
-    file = Path(path)
-    root = load_table(file)
     root.check_known({"vehicle_id", "description", "platform", "route", "controller", "loop", "workers",
                       "telemetry", "failsafe", "safety", "log"})
     vehicle_id = root.string("vehicle_id")
@@ -124,7 +126,7 @@ def load_mission(path: str | Path) -> Mission:
     return Mission(file=file, vehicle_id=vehicle_id, description=root.string("description", ""),
                    platform=platform, scenario=scenario, controller=controller, model_path=model_path,
                    compensation=compensation, loop=loop, workers=workers, telemetry=telemetry,
-                   failsafe=failsafe, safety=safety, log_dir=log_dir, text=file.read_text(errors="replace"))
+                   failsafe=failsafe, safety=safety, log_dir=log_dir, text=text)
 
 
 def _find(name: str, mission_file: Path, folder: str, suffix: str, table: Table, key: str) -> Path:

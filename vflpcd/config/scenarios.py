@@ -9,6 +9,7 @@ The file format is documented in ``config/scenarios/README.md``. Every problem i
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from vflpcd.core.path import ReferencePath
 from vflpcd.core.shapes import SHAPES_2D, SHAPES_3D, shape_from_table
 from vflpcd.base.errors import ConfigError
 from vflpcd.base.paths import config_dir
+from vflpcd.base.inputfile import read_text
 from vflpcd.base.tomlread import Table, load_table
 
 PLATFORMS = {"ground": ("dynamic_bicycle", 2, 2), "aerial": ("quadrotor", 3, 3)}  # plant, dim, n_u
@@ -198,10 +200,14 @@ def _load_path(t: Table, dim: int, file: Path) -> ReferencePath:
         wp = t.matrix("points", dim, min_rows=2)
     else:
         wp_file = (file.parent / t.string("file")).resolve()
-        if not wp_file.is_file():
-            raise t.error("file", f"waypoint file not found: {wp_file}")
         try:
-            wp = np.loadtxt(wp_file, delimiter=",", comments="#", ndmin=2)
+            lines = read_text(wp_file).splitlines()
+        except ConfigError as exc:
+            raise t.error("file", f"waypoint file {wp_file}: {exc.message}") from None
+        try:
+            with warnings.catch_warnings():             # "no data": the shape check below says so
+                warnings.simplefilter("ignore", UserWarning)
+                wp = np.loadtxt(lines, delimiter=",", comments="#", ndmin=2)
         except ValueError as exc:
             raise t.error("file", f"{wp_file} is not a CSV of numbers ({exc})") from None
         if wp.shape[1] != dim or wp.shape[0] < 2 or not np.all(np.isfinite(wp)):

@@ -34,6 +34,7 @@ import numpy as np
 from vflpcd.base.npzfile import write_npz
 
 from vflpcd.base.errors import ConfigError
+from vflpcd.base.inputfile import DATA_MAX_BYTES, open_npz
 
 log = logging.getLogger("vflpcd.training.datasets")
 
@@ -150,15 +151,6 @@ def _rebrand(exc: ConfigError, file: Path) -> ConfigError:
     return ConfigError(file, exc.field, exc.message)
 
 
-def _open_npz(path: Path):
-    if not path.is_file():
-        raise ConfigError(path, "<file>", "file not found")
-    try:
-        return np.load(path, allow_pickle=False)
-    except Exception as exc:  # zipfile/pickle/format errors all mean the same to the user
-        raise ConfigError(path, "<file>", f"not a readable NumPy .npz archive ({type(exc).__name__})") from None
-
-
 def _get(npz, path: Path, key: str) -> np.ndarray:
     if key not in npz.files:
         raise ConfigError(path, key, f"missing required array (have: {', '.join(sorted(npz.files))})")
@@ -170,7 +162,7 @@ def _get(npz, path: Path, key: str) -> np.ndarray:
 
 # ---------------------------------------------------------------------- CarSim
 def _carsim_file(path: Path) -> Log:
-    with _open_npz(path) as npz:
+    with open_npz(path, DATA_MAX_BYTES) as npz:
         cols = {}
         for key in ("t", *CARSIM_STATES, *CARSIM_CONTROLS):
             arr = _get(npz, path, key)
@@ -250,7 +242,7 @@ def _names(npz, path: Path, key: str) -> tuple[str, ...]:
 def load_log(path: str | Path) -> Log:
     """Read a log written by :func:`save_log`. ConfigError naming the file and the field."""
     path = Path(path)
-    with _open_npz(path) as npz:
+    with open_npz(path, DATA_MAX_BYTES) as npz:
         for key in _REQUIRED_KEYS:
             if key not in npz.files:
                 raise ConfigError(path, key, f"missing required array (have: {', '.join(sorted(npz.files))})")
@@ -277,7 +269,7 @@ def load_log(path: str | Path) -> Log:
 
 
 def _load_any(path: Path) -> Log:
-    with _open_npz(path) as npz:
+    with open_npz(path, DATA_MAX_BYTES) as npz:
         own = "states" in npz.files
     return load_log(path) if own else _carsim_file(path)
 
