@@ -224,6 +224,9 @@ LOAD_CASES = {
     "telemetry.mode unknown": ({"telemetry.mode": "router"}, "telemetry.mode"),
     "telemetry client without connect": ({"telemetry.mode": "client"}, "telemetry.connect"),
     "log.dir not a string": ({"log.dir": 3}, "log.dir"),
+    "log.flush_period too short": ({"log.flush_period": 0.01}, "log.flush_period"),
+    "log.flush_period too long": ({"log.flush_period": 60.0}, "log.flush_period"),
+    "log.flush_period not a number": ({"log.flush_period": "1s"}, "log.flush_period"),
     "description not a string": ({"description": ["x"]}, "description"),
 }
 
@@ -338,6 +341,11 @@ def test_missing_file(tmp_path):
 
 
 # Inputs that once raised a traceback instead of exit code 2.
+def test_log_flush_period_default_and_set(tmp_path):
+    assert load_mission(write_mission(tmp_path)).log_flush_period == 0.5
+    assert load_mission(write_mission(tmp_path, **{"log.flush_period": 1})).log_flush_period == 1.0
+
+
 def test_log_dir_of_an_unknown_user(tmp_path):
     f = write_mission(tmp_path, **{"log.dir": "~no_such_user_vflpcd/logs"})
     with pytest.raises(ConfigError) as info:

@@ -220,7 +220,7 @@ def cmd_run(args) -> int:
         if touched and result.outcome.code != EXIT_COLLISION:     # contact is never a success
             result.outcome = replace(result.outcome, code=EXIT_COLLISION,
                                      reason=f"collision: touched {', '.join(touched)} ({result.outcome.reason})")
-        print("\n".join(summary_lines(log, mission.scenario, result.outcome)))
+        print("\n".join(summary_lines(log, mission.scenario, result.outcome, result.log_stop)))
         if args.plot:
             from vflpcd.log.plot import plot_flight_log
 

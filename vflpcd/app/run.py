@@ -29,9 +29,13 @@ log = logging.getLogger("vflpcd.app.run")
 
 @dataclass
 class RunResult:
+    """outcome; log_path: the flight log; log_stop: why the log stopped before the run ended
+    (``FlightRecorder.stop_reason``), None when it did not."""
+
     outcome: Outcome
     log_path: Path | None
     mission: Mission
+    log_stop: str | None = None
 
 
 def build_platform(mission: Mission, flight_log: Path | None = None):
@@ -100,7 +104,7 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
     if mission.telemetry.enabled:         # first: a port in use must not leave an empty log behind
         telemetry, perception = _open_telemetry(mission, platform, header, closers)
     try:
-        recorder = FlightRecorder(flight_log, header)
+        recorder = FlightRecorder(flight_log, header, mission.log_flush_period)
     except ConfigError:
         for close in closers:
             close()
@@ -134,7 +138,7 @@ def run_mission(mission: Mission, *, drill: Drill | None = None, rate_hz: float 
                 log.info("event=%s %s", kind, " ".join(f"{k}={v}" for k, v in detail.items()))
         perception.on_event = perception_event
     outcome = asyncio.run(daemon.run())
-    return RunResult(outcome, recorder.path, mission)
+    return RunResult(outcome, recorder.path, mission, recorder.stop_reason)
 
 
 def _open_telemetry(mission: Mission, platform, header: MissionHeader, closers: list):

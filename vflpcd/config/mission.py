@@ -48,6 +48,7 @@ class Mission:
     safety: tuple                # (SupervisorConfig, MonitorConfig) of vflpcd.core.safety
     log_dir: Path
     text: str                   # the mission file as written (kept in the flight log)
+    log_flush_period: float = 0.5   # s between the flight log's commits (vflpcd.log.writer)
 
 
 def load_mission(path: str | Path) -> Mission:
@@ -117,16 +118,18 @@ def load_mission(path: str | Path) -> Mission:
     safety = safety_settings(scenario.platform, root.table("safety", {}))
 
     lg = root.table("log", {})
-    lg.check_known({"dir"})
+    lg.check_known({"dir", "flush_period"})
     try:
         log_dir = Path(lg.string("dir", "logs")).expanduser()
     except RuntimeError as exc:             # ~user of an unknown user
         raise lg.error("dir", str(exc)) from None
+    flush_period = lg.number("flush_period", 0.5, min=0.05, max=5.0)
 
     return Mission(file=file, vehicle_id=vehicle_id, description=root.string("description", ""),
                    platform=platform, scenario=scenario, controller=controller, model_path=model_path,
                    compensation=compensation, loop=loop, workers=workers, telemetry=telemetry,
-                   failsafe=failsafe, safety=safety, log_dir=log_dir, text=text)
+                   failsafe=failsafe, safety=safety, log_dir=log_dir, text=text,
+                   log_flush_period=flush_period)
 
 
 def _find(name: str, mission_file: Path, folder: str, suffix: str, table: Table, key: str) -> Path:

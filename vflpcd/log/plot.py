@@ -44,7 +44,7 @@ def plot_flight_log(log: FlightLog, out: str | Path) -> Path:
     duration = float(log.t[-1] - log.t[0]) if len(log) else 0.0
     fig.suptitle(f"{h.vehicle_id} ({h.platform}) / {h.controller} at {h.rate_hz:g} Hz: {len(log)} ticks, "
                  f"{duration:.1f} s, {int(log.overrun.sum())} overruns"
-                 + (", log truncated" if log.truncated else ""))
+                 + (f", log stopped early ({log.stop_reason or 'the writer was killed'})" if log.truncated else ""))
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out

@@ -1,8 +1,9 @@
 """Reading a flight log (the MCAP file of ``vflpcd.log.writer``) into numpy arrays.
 
-A daemon killed mid-run leaves a file without summary and footer, possibly cut inside a record;
-``read_flight_log`` reads it record by record, keeps every complete message and reports
-``truncated=True``.
+A log that stopped early (the daemon was killed, or a write error stopped the recorder) ends in
+a footer without a summary (``vflpcd.log.mcapfile``), or, written another way, without any footer
+and possibly inside a record; ``read_flight_log`` reads it record by record, keeps every complete
+message and reports ``truncated=True``.
 """
 
 from __future__ import annotations
@@ -36,7 +37,9 @@ class FlightLog:
     lateness_s, compute_s (M,) s; overrun (M,) bool; plan_version, model_version (M,) int;
     threats: M tuples of obstacle ids. obstacles: id -> (M, d) centres, NaN rows where that
     obstacle was absent from the tick; obstacle_radius: id -> radius (m) as last recorded.
-    truncated: the file ended before its footer (the writer was killed).
+    truncated: the log stopped before the recorder finished it (no summary and final footer);
+    stop_reason: why, when the recorder could say so (its ``log_stopped`` event, e.g. "disk full
+    (ENOSPC)"), else None (the writer was killed or the process died).
     """
 
     path: Path
@@ -59,6 +62,15 @@ class FlightLog:
     obstacles: dict[str, np.ndarray] = field(default_factory=dict)
     obstacle_radius: dict[str, float] = field(default_factory=dict)
     truncated: bool = False
+
+    @property
+    def stop_reason(self) -> str | None:
+        return next((str(e.detail.get("reason", "")) for e in self.events if e.kind == "log_stopped"), None)
+
+    @property
+    def logged_s(self) -> float:
+        """Mission time of the last tick in the log (s), 0 without ticks."""
+        return float(self.t[-1]) if len(self) else 0.0
 
     def __len__(self) -> int:
         return len(self.k)
@@ -111,7 +123,7 @@ def read_flight_log(path: str | Path) -> FlightLog:
                     elif topic == "/header" and header is None:
                         header = _decode(path, record)
                 elif isinstance(record, Footer):
-                    truncated = False
+                    truncated = record.summary_start == 0     # a commit's trailer, not the final footer
         except InvalidMagic as exc:
             raise ConfigError(path, FILE_FIELD, "not an MCAP file (bad magic bytes)") from exc
         except (EndOfFile, struct.error):

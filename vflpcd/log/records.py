@@ -123,6 +123,7 @@ EVENT_KINDS = (
     "mission_complete",   # detail: progress_m
     "stopping",           # detail: reason (signal name, mission_complete, failsafe)
     "link_stats",         # the platform link's counters at the end (frames, bad frames by kind, setpoints, ...)
+    "log_stopped",        # the flight log only: a write error stopped the recorder (detail: reason, errno)
 )
 
 

@@ -38,8 +38,31 @@ def touched_obstacles(clear: dict[str, float]) -> list[str]:
     return [oid for oid, gap in clear.items() if gap <= 0.0]
 
 
-def summary_lines(log: FlightLog, scenario, outcome=None) -> list[str]:
-    """The summary as aligned ``label value`` lines."""
+KILLED = "no closing record (the writer was killed or the process died)"
+
+
+def run_span(outcome) -> tuple[int, float] | None:
+    """(ticks, seconds) the daemon ran, from the outcome's control loop; None without one."""
+    loop = outcome.loop if outcome is not None else None
+    if loop is None or loop.t0_ns is None:
+        return None
+    return loop.counters.ticks, loop.mission_time(loop.last_tick_ns)
+
+
+def log_stop_line(log: FlightLog, run: tuple[int, float] | None = None, stop_reason: str | None = None) -> str | None:
+    """When and why the log stopped before the end of the run, None when it did not: e.g. "stopped
+    at 13.60 s of a 40.20 s run: disk full (ENOSPC)". ``run``: the daemon's ``run_span``;
+    ``stop_reason``: the recorder's own account (``FlightRecorder.stop_reason``), which comes
+    before the log's ``log_stopped`` event; without either the writer was killed."""
+    if not log.truncated and stop_reason is None:
+        return None
+    of_run = f" of a {run[1]:.2f} s run" if run is not None else ""
+    return f"stopped at {log.logged_s:.2f} s{of_run}: {stop_reason or log.stop_reason or KILLED}"
+
+
+def summary_lines(log: FlightLog, scenario, outcome=None, stop_reason: str | None = None) -> list[str]:
+    """The summary as aligned ``label value`` lines; ``stop_reason``: the recorder's, when the run
+    wrote the log in this process (``log_stop_line``)."""
     period = 1.0 / log.header.rate_hz
     stepped = log.compute_s > 0
     late, comp = log.lateness_s * 1e3, log.compute_s[stepped] * 1e3
@@ -51,8 +74,13 @@ def summary_lines(log: FlightLog, scenario, outcome=None) -> list[str]:
     if outcome is not None:
         add("outcome", f"{outcome.reason} (exit code {outcome.code})")
     add("vehicle / platform", f"{log.header.vehicle_id} / {log.header.platform} ({log.header.controller})")
-    duration = float(log.t[-1]) if len(log) else 0.0
-    add("ticks", f"{len(log)} at {log.header.rate_hz:g} Hz over {duration:.2f} s")
+    run = run_span(outcome)
+    stopped = log_stop_line(log, run, stop_reason)
+    if stopped is not None and run is not None:
+        add("ticks", f"{run[0]} at {log.header.rate_hz:g} Hz over {run[1]:.2f} s "
+                     f"({len(log)} logged, to {log.logged_s:.2f} s)")
+    else:
+        add("ticks", f"{len(log)} at {log.header.rate_hz:g} Hz over {log.logged_s:.2f} s")
     if len(log):
         add("start lateness p50/p99/max", f"{np.percentile(late, 50):.3f} / {np.percentile(late, 99):.3f} / "
                                           f"{late.max():.3f} ms")
@@ -85,7 +113,7 @@ def summary_lines(log: FlightLog, scenario, outcome=None) -> list[str]:
         add("min clearance", f"{clear[worst]:.2f} m ({worst})")
         touched = touched_obstacles(clear)
         add("collisions", f"{len(touched)} obstacles touched" + (f" ({', '.join(touched)})" if touched else ""))
-    if log.truncated:
-        add("log", "truncated (the writer was killed)")
+    if stopped is not None:
+        add("log", stopped)
     add("log file", str(log.path))
     return lines

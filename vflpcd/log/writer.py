@@ -1,25 +1,27 @@
 """The flight log: every tick and event of a run in one MCAP file, written off the control thread.
 
-Layout: an unchunked MCAP file (profile "", no compression). Each record is one MCAP message
-record written straight after the previous one, so the file is at every moment a valid MCAP
-prefix; the writer thread flushes the file object every ``flush_period_s``, handing the bytes
-to the kernel. A process killed with SIGKILL therefore loses only what was still in the queue
-or in the user-space buffer: at most ``flush_period_s`` plus one write pass. (``os.fsync`` is
-not called: the kernel keeps what it was given when the process dies; only a power cut loses
-more.) ``vflpcd.log.reader.read_flight_log`` reads such a truncated file up to its last complete
-message. ``close()`` writes the summary and footer.
+Layout: a chunked MCAP file (profile "", no compression, message indexes). The writer thread
+closes a chunk every ``flush_period_s`` and commits it through ``vflpcd.log.mcapfile.McapFile``:
+after each commit the file is a complete MCAP file, closed by a footer, synced to disk, that
+every MCAP reader reads (the ``mcap`` package's seeking and stream readers, Foxglove). A process
+killed with SIGKILL, or a power cut, loses only what came after the last commit: at most
+``flush_period_s`` plus one write pass. ``close()`` writes the summary (chunk indexes,
+statistics) and the final footer; a log without them stopped early (``FlightLog.truncated``).
 
 Channels (message encoding "json", schema encoding "jsonschema"): ``/header`` (one
 ``MissionHeader``, log time = the open time), ``/tick`` (``TickRecord``), ``/event``
 (``Event``); log_time = publish_time = the record's ``stamp_ns`` (``time.monotonic_ns()``).
 
 The caller never waits on the disk: ``record_tick``/``record_event`` append to a queue and
-return; the thread "flight-recorder" encodes and writes. A write error is logged once at ERROR
-and the recorder stops writing; it never raises into the caller.
+return; the thread "flight-recorder" encodes and writes. A write error (a full disk) is logged
+once at ERROR and the recorder stops writing; it never raises into the caller. It keeps the
+reason (``stop_reason``, e.g. "disk full (ENOSPC)") and tries to close the log with a
+``log_stopped`` event that names it (which fits when the file's last disk block has room).
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import queue
@@ -31,8 +33,9 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from mcap.writer import CompressionType, IndexType, Writer
+from mcap.writer import CompressionType, Writer
 
+from vflpcd.log.mcapfile import McapFile
 from vflpcd.log.records import Event, MissionHeader, TickRecord, json_bytes
 from vflpcd.base.errors import ConfigError
 
@@ -41,6 +44,8 @@ log = logging.getLogger("vflpcd.log.writer")
 TOPIC_HEADER = "/header"
 TOPIC_TICK = "/tick"
 TOPIC_EVENT = "/event"
+
+CHUNK_SIZE = 4 << 20     # bytes; a chunk is closed at each commit, or when it grows past this
 
 _STOP = object()
 
@@ -94,11 +99,12 @@ def _type_schema(tp: Any) -> dict[str, Any]:
 class FlightRecorder:
     """Writes ``TickRecord``s and ``Event``s to the MCAP file ``path`` from its own thread.
 
-    The file is created (and ``header`` written) at construction; an unusable path raises
+    The file is created (and ``header`` committed) at construction; an unusable path raises
     ``ConfigError(path, "log.dir", ...)``. ``record_tick``/``record_event`` only enqueue (a few
-    microseconds) and never raise. ``written``: records (ticks and events) written; ``dropped``:
-    records refused after ``close()`` or lost after a write error; ``failed``: a write error
-    stopped the recorder.
+    microseconds) and never raise. ``written``: records (ticks and events) committed to the file;
+    ``dropped``: records refused after ``close()`` or lost to a write error; ``failed``: a write
+    error stopped the recorder; ``stop_reason``: why the log ended before ``close()`` finished it
+    (None while it has not).
     """
 
     def __init__(self, path: str | Path, header: MissionHeader, flush_period_s: float = 0.5) -> None:
@@ -106,7 +112,7 @@ class FlightRecorder:
         self.flush_period_s = float(flush_period_s)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._file = open(self.path, "wb")
+            self._file = McapFile(self.path)
         except OSError as exc:
             raise ConfigError(self.path, "log.dir", f"cannot open the flight log for writing "
                                                     f"({exc.strerror or exc})") from exc
@@ -114,15 +120,17 @@ class FlightRecorder:
         self._accepting = True
         self._failed = False
         self._closed = False
+        self._stop_reason: str | None = None
         self._close_lock = threading.Lock()
         self._refused_lock = threading.Lock()
         self._refused = 0
         self._lost = 0
         self._written = 0
+        self._uncommitted = 0
+        self._last_clock: tuple[float, int] | None = None    # (t, stamp_ns) of the last tick added
         self._bad_record_logged = False
         try:
-            self._writer = Writer(self._file, use_chunking=False, compression=CompressionType.NONE,
-                                  index_types=IndexType.NONE)
+            self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.NONE)
             self._writer.start(profile="", library="vflpcd")
             self._channels = {}
             for topic, cls in ((TOPIC_HEADER, MissionHeader), (TOPIC_TICK, TickRecord), (TOPIC_EVENT, Event)):
@@ -131,10 +139,13 @@ class FlightRecorder:
                 self._channels[cls] = self._writer.register_channel(topic, "json", schema_id)
             now = time.monotonic_ns()
             self._writer.add_message(self._channels[MissionHeader], now, _encode(header), now)
-            self._file.flush()
+            self._writer.flush()
+            self._file.commit()
         except OSError as exc:
             self._file.close()
             raise ConfigError(self.path, "log.dir", f"cannot write the flight log ({exc.strerror or exc})") from exc
+        log.info("event=flight_log path=%s crash_safe=\"readable by every MCAP reader up to its last commit, "
+                 "every %.2f s, synced to disk\"", self.path, self.flush_period_s)
         self._thread = threading.Thread(target=self._run, name="flight-recorder", daemon=False)
         self._thread.start()
 
@@ -174,6 +185,10 @@ class FlightRecorder:
     def closed(self) -> bool:
         return self._closed
 
+    @property
+    def stop_reason(self) -> str | None:
+        return self._stop_reason
+
     def close(self, timeout_s: float = 1.0) -> None:
         """Stop accepting records, write what is queued, the summary and footer, close the file and
         join the thread (at most ``timeout_s``). Idempotent; never raises."""
@@ -185,6 +200,7 @@ class FlightRecorder:
             self._queue.put(_STOP)
         self._thread.join(timeout_s)
         if self._thread.is_alive():
+            self._stop_reason = self._stop_reason or f"the recorder did not finish within {timeout_s:g} s"
             log.warning("event=flight_log_close_timeout path=%s timeout_s=%.2f queued=%d",
                         self.path, timeout_s, self._queue.qsize())
             return
@@ -204,11 +220,9 @@ class FlightRecorder:
         except Exception:  # a bug here must not leave the queue growing behind a dead thread
             self._failed = self._closed = True
             self._accepting = False
+            self._stop_reason = self._stop_reason or "the recorder crashed"
             log.exception("event=flight_log_writer_crashed path=%s written=%d later=dropped", self.path, self._written)
-            try:
-                self._file.close()
-            except (OSError, ValueError):
-                pass
+            self._file.close()
 
     def _loop(self) -> None:
         next_flush = time.monotonic() + self.flush_period_s
@@ -227,12 +241,10 @@ class FlightRecorder:
                 self._write(item)
             if time.monotonic() >= next_flush:
                 next_flush = time.monotonic() + self.flush_period_s
-                self._guard(self._file.flush)
-        self._guard(self._finish)
-        try:
-            self._file.close()
-        except OSError:
-            pass
+                self._commit()
+        if not self._failed:
+            self._commit(final=True)
+        self._file.close()
 
     def _write(self, rec: TickRecord | Event) -> None:
         if self._failed:
@@ -249,27 +261,47 @@ class FlightRecorder:
                 log.error("event=flight_log_bad_record type=%s error=%r later_bad_records=unlogged",
                           type(rec).__name__, exc)
             return
-        if self._guard(self._writer.add_message, self._channels[type(rec)], rec.stamp_ns, data, rec.stamp_ns):
-            self._written += 1
-        else:
-            self._lost += 1
+        self._writer.add_message(self._channels[type(rec)], rec.stamp_ns, data, rec.stamp_ns)
+        self._uncommitted += 1
+        if isinstance(rec, TickRecord):
+            self._last_clock = (rec.t, rec.stamp_ns)
 
-    def _finish(self) -> None:
-        self._writer.finish()
-        self._file.flush()
-
-    def _guard(self, fn, *args) -> bool:
+    def _commit(self, final: bool = False) -> None:
+        """Close the chunk in progress and commit it (final: with the summary and footer)."""
         if self._failed:
-            return False
+            return
         try:
-            fn(*args)
-            return True
-        except (OSError, ValueError) as exc:
-            self._failed = True
-            self._accepting = False
-            log.error("event=flight_log_write_failed path=%s error=%r written=%d later=dropped",
-                      self.path, exc, self._written)
-            return False
+            if final:
+                self._writer.finish()
+            else:
+                self._writer.flush()
+            self._file.commit(final=final)
+        except OSError as exc:
+            self._lost += self._uncommitted
+            self._uncommitted = 0
+            self._stop(exc)
+            return
+        self._written += self._uncommitted
+        self._uncommitted = 0
+
+    def _stop(self, exc: OSError) -> None:
+        """After a write error: stop writing, keep the reason, and try to end the log with it."""
+        self._failed = True
+        self._accepting = False
+        self._stop_reason = write_error_reason(exc)
+        now = time.monotonic_ns()
+        t = self._last_clock[0] + (now - self._last_clock[1]) * 1e-9 if self._last_clock else 0.0
+        code = errno.errorcode.get(exc.errno or 0, "")
+        ev = Event(t=t, stamp_ns=now, kind="log_stopped", detail={"reason": self._stop_reason, "errno": code})
+        try:
+            self._writer.add_message(self._channels[Event], now, _encode(ev), now)
+            self._writer.flush()
+            self._file.commit()
+            recorded = "yes"
+        except OSError:
+            recorded = "no"
+        log.error("event=flight_log_write_failed path=%s reason=%s error=%r written=%d stop_recorded=%s "
+                  "later=dropped", self.path, self._stop_reason, exc, self._written, recorded)
 
     def _discard_queue(self) -> int:
         n = 0
@@ -280,6 +312,17 @@ class FlightRecorder:
                 return n
             if item is not _STOP:
                 n += 1
+
+
+def write_error_reason(exc: OSError) -> str:
+    """Why a write failed, in words: "disk full (ENOSPC)", "disk quota exceeded (EDQUOT)" or
+    "write error (EIO: Input/output error)"."""
+    code = errno.errorcode.get(exc.errno or 0)
+    if exc.errno == errno.ENOSPC:
+        return "disk full (ENOSPC)"
+    if exc.errno == errno.EDQUOT:
+        return "disk quota exceeded (EDQUOT)"
+    return f"write error ({code or 'errno ' + str(exc.errno)}: {exc.strerror or exc})"
 
 
 def _encode(rec: Any) -> bytes:

@@ -1,7 +1,9 @@
-"""FlightRecorder: round trip through the MCAP file, errors, and a daemon killed with SIGKILL."""
+"""FlightRecorder: round trip through the MCAP file, errors, a full disk, and a process killed
+with SIGKILL."""
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import signal
@@ -16,10 +18,13 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from fulldisk import FullDisk
+from mcap_readers import READERS, mcap_messages
 from vflpcd.log.writer import FlightRecorder, log_path
 from vflpcd.log.records import Event, MissionHeader, ObstacleRecord, TickRecord
 from vflpcd.base.errors import ConfigError
 from vflpcd.log.reader import read_flight_log
+from vflpcd.log.summary import KILLED, log_stop_line
 
 LOGGER = "vflpcd.log.writer"
 REPO = Path(__file__).resolve().parents[3]
@@ -155,8 +160,53 @@ def test_write_error_is_logged_once_and_stops_writing(tmp_path, caplog):
         rec.close()
     errors = [r for r in caplog.records if r.name == LOGGER and r.levelno == logging.ERROR]
     assert len(errors) == 1 and "event=flight_log_write_failed" in errors[0].getMessage()
+    assert "reason=disk full (ENOSPC)" in errors[0].getMessage() and "stop_recorded=no" in errors[0].getMessage()
+    assert rec.stop_reason == "disk full (ENOSPC)"
     assert rec.written + rec.dropped == 301 and rec.dropped > 0
     assert not rec._thread.is_alive()
+
+
+def tick_ids(path: Path, reader: str) -> list[int]:
+    """The k of every /tick message as the mcap package's ``reader`` reads the file."""
+    return [json.loads(m.data)["k"] for topic, m in mcap_messages(path.read_bytes(), reader) if topic == "/tick"]
+
+
+@pytest.mark.parametrize("slack", [4096, 0], ids=["room_for_a_last_record", "no_room_at_all"])
+def test_a_full_disk_stops_the_log_and_the_reason_is_kept(tmp_path, monkeypatch, caplog, slack):
+    path = tmp_path / "run.mcap"
+    disk = FullDisk(tmp_path, limit=40_000, slack=slack)
+    monkeypatch.setattr(os, "pwrite", disk)
+    with caplog.at_level(logging.ERROR, logger=LOGGER):
+        rec = FlightRecorder(path, header(), flush_period_s=0.02)
+        for k in range(400):
+            rec.record_tick(tick(k))
+            if k % 10 == 0:
+                time.sleep(0.01)
+        rec.close()
+    monkeypatch.setattr(os, "pwrite", disk.real)
+    assert rec.failed and disk.failures >= 1
+    assert rec.stop_reason == "disk full (ENOSPC)"
+    assert rec.written + rec.dropped == 400 and rec.dropped > 0
+    (error,) = [r.getMessage() for r in caplog.records if r.name == LOGGER]
+    assert "event=flight_log_write_failed" in error and "reason=disk full (ENOSPC)" in error
+    assert f"stop_recorded={'yes' if slack else 'no'}" in error
+    assert path.stat().st_size <= 40_000 + slack
+
+    log = read_flight_log(path)
+    assert log.truncated and 0 < len(log) == rec.written < 400
+    np.testing.assert_array_equal(log.k, np.arange(len(log)))
+    for reader in READERS:                # what was written stays readable by all
+        assert tick_ids(path, reader) == list(range(len(log)))
+    if slack:                                           # the log says why it stopped
+        assert log.events[-1].kind == "log_stopped"
+        assert log.events[-1].detail == {"reason": "disk full (ENOSPC)", "errno": "ENOSPC"}
+        assert log.events[-1].t >= log.t[-1]
+        assert log_stop_line(log) == f"stopped at {log.t[-1]:.2f} s: disk full (ENOSPC)"
+    else:                                               # only the recorder can say it
+        assert log.stop_reason is None
+        assert log_stop_line(log) == f"stopped at {log.t[-1]:.2f} s: {KILLED}"
+        assert log_stop_line(log, (1000, 10.0), rec.stop_reason) == \
+            f"stopped at {log.t[-1]:.2f} s of a 10.00 s run: disk full (ENOSPC)"
 
 
 def test_unwritable_directory_is_a_config_error(tmp_path):
@@ -225,10 +275,12 @@ def test_sigkill_loses_at_most_the_last_second(tmp_path):
     assert last >= 200
 
     log = read_flight_log(path)
-    assert log.truncated
+    assert log.truncated and log.stop_reason is None
     assert log.header.vehicle_id == "car1"
     assert len(log) >= last - 100, (len(log), last)
     np.testing.assert_array_equal(log.k, np.arange(len(log)))
+    for reader in READERS:
+        assert tick_ids(path, reader) == list(range(len(log)))
 
 
 def test_a_bad_record_is_skipped_and_logged_once(tmp_path, caplog):
