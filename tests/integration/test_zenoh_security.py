@@ -20,6 +20,7 @@ from loopback import wait_for, zenoh_peer
 from vflpcd.app.run import run_mission
 from vflpcd.app.testca import make_test_ca
 from vflpcd.app.watch import watch
+from vflpcd.base.errors import ConfigError
 from vflpcd.config.mission import load_mission
 from vflpcd.daemon.perception import PerceptionInput, PerceptionLimits
 from vflpcd.daemon.telemetry import TelemetryPublisher, key_expressions, open_session
@@ -39,7 +40,8 @@ def certs(tmp_path_factory):
 
 
 def secure_mission(mission_file, port, folder, telemetry=("gcs",), perception=("perception",)):
-    path = mission_file(rate_hz=20.0, telemetry_port=port, telemetry_extra="perception = true\nperception_max_age_s = 0.5",
+    path = mission_file(rate_hz=20.0, telemetry_port=port,
+                        telemetry_extra="perception = true\nperception_max_age_s = 0.5",
                         extra=f"""
 [telemetry.tls]
 ca = "{folder / 'ca.pem'}"
@@ -116,7 +118,8 @@ def test_session_from_the_mission_serves_only_its_identities(certs, mission_file
     session = open_session(mission.telemetry, vehicle_id=mission.vehicle_id)
     tc = mission.telemetry
     pub = TelemetryPublisher(session, VID, tc)
-    limits = PerceptionLimits(lo=np.array([-100.0, -100.0]), hi=np.array([100.0, 100.0]), max_speed=40.0, max_radius=10.0)
+    limits = PerceptionLimits(lo=np.array([-100.0, -100.0]), hi=np.array([100.0, 100.0]), max_speed=40.0,
+                              max_radius=10.0)
     inp = PerceptionInput(session, VID, 2, 5.0, limits, 200.0)
     perceived: list[str] = []
     spy = session.declare_subscriber(f"vflpc/{VID}/**", lambda s: perceived.append(s.payload.to_bytes().decode()))
@@ -181,7 +184,7 @@ def test_daemon_over_mutual_tls_with_watch_and_perception(certs, mission_file, p
             wait_for(lambda: gate.matching_status.matching or stop.is_set(), timeout=15.0)  # the daemon listens
             listening.set()
             gcs = Peer("gcs", zenoh_peer(port, ours / "gcs.toml"))
-            for i in range(60):
+            for _ in range(60):
                 if stop.is_set():
                     break
                 gate.put(json.dumps({"stamp": time.time(), "obstacles": [
@@ -242,3 +245,14 @@ def test_check_refuses_a_tls_endpoint_without_certificates(certs, mission_file, 
     assert main(["check", str(secured)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "telemetry.tls.ca: no such file" in err and str(plain.parent / "pki") in err
+
+
+def test_a_key_of_another_certificate_is_named_when_the_session_opens(certs, mission_file, port):
+    ours, _ = certs
+    path = secure_mission(mission_file, port, ours)
+    path.write_text(path.read_text().replace(f'"{ours / "daemon.key"}"', f'"{ours / "gcs.key"}"'))
+    mission = load_mission(path)                          # both files are PEM: check cannot tell
+    with pytest.raises(ConfigError) as err:
+        open_session(mission.telemetry, vehicle_id=mission.vehicle_id, file=mission.file)
+    assert err.value.field == "telemetry.tls" and "Zenoh cannot use the certificates" in err.value.message
+    assert "\n" not in str(err.value)

@@ -165,7 +165,7 @@ class TelemetryConfig:
         if problem is not None:
             key, reason = problem
             if tls is None:
-                raise table.error("tls", f"{key}: {reason} (a [telemetry.tls] table: ca, certificate, private_key)")
+                raise table.error("tls", f"{key}: {reason} (a [telemetry.tls] table)")
             raise table.error(key, reason)
         if access is not None and (tls is None or not tls.mutual):
             raise table.error("access", "access control tells identities apart by their client certificates: "

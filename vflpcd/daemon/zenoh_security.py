@@ -17,7 +17,8 @@ identity may exchange puts and subscriptions with it, within ``vflpc/<id>/``. Bo
 ``AccessPolicy``.
 
 ``IdentityFile`` reads a client's identity file (TOML): ``ca``, ``certificate``, ``private_key``
-and optionally ``daemon``, the daemon certificate's CN that alone may serve it telemetry.
+(``mutual`` as above, for a client that listens) and optionally ``daemon``, the daemon
+certificate's CN that alone may serve it telemetry.
 """
 
 from __future__ import annotations

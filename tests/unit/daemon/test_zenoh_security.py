@@ -132,12 +132,13 @@ def test_certificates_zenoh_cannot_use_are_named_when_opening(folder):
 
 def test_identity_file(folder):
     path = folder / "gcs.toml"
-    path.write_text('ca = "certs/ca.pem"\ncertificate = "certs/d.pem"\nprivate_key = "certs/d.key"\ndaemon = "vflpcd"\n')
+    files = 'ca = "certs/ca.pem"\ncertificate = "certs/d.pem"\nprivate_key = "certs/d.key"\n'
+    path.write_text(files + 'daemon = "vflpcd"\n')
     ident = IdentityFile.load(path)
     assert ident.tls.ca == (folder / "certs" / "ca.pem").resolve() and ident.policy() == TrustedDaemon("vflpcd")
-    path.write_text('ca = "certs/ca.pem"\ncertificate = "certs/d.pem"\nprivate_key = "certs/d.key"\n')
+    path.write_text(files)
     assert IdentityFile.load(path).policy() is None
-    path.write_text('ca = "certs/ca.pem"\ncertificate = "certs/d.pem"\nprivate_key = "certs/d.key"\ndaemon = ""\n')
+    path.write_text(files + 'daemon = ""\n')
     with pytest.raises(ConfigError) as err:
         IdentityFile.load(path)
     assert err.value.file == str(path) and err.value.field == "daemon"
