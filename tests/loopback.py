@@ -32,10 +32,19 @@ def wait_for(pred, timeout: float = 3.0) -> bool:
     return pred()
 
 
-def zenoh_peer(port: int):
-    """A Zenoh peer session that connects to 127.0.0.1:``port`` (multicast scouting off)."""
+def zenoh_peer(port: int, identity=None, vehicle_id: str = "t1"):
+    """A Zenoh peer session that connects to 127.0.0.1:``port`` (multicast scouting off): over TCP,
+    or with ``identity`` (an identity file, ``vflpcd.daemon.zenoh_security.IdentityFile``) over TLS,
+    taking ``vehicle_id``'s key space from the identity's daemon only when the file names one."""
     import zenoh
 
+    if identity is not None:
+        from vflpcd.daemon.telemetry import TelemetryConfig, open_session
+        from vflpcd.daemon.zenoh_security import IdentityFile
+
+        ident = IdentityFile.load(identity)
+        return open_session(TelemetryConfig(connect=(f"tls/127.0.0.1:{port}",), tls=ident.tls, access=ident.policy()),
+                            vehicle_id=vehicle_id)
     cfg = zenoh.Config()
     cfg.insert_json5("mode", '"peer"')
     cfg.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))

@@ -69,3 +69,20 @@ def test_watch_without_publisher_returns():
     out = io.StringIO()
     assert watch(VID, duration_s=0.2, out=out, refresh_s=0.1) == 0
     assert "0 messages" in out.getvalue() and "(none yet)" in out.getvalue()
+
+
+def test_watch_needs_an_identity_for_tls_and_tls_with_one(tmp_path):
+    with pytest.raises(ConfigError) as err:
+        watch(VID, connect=("tls/127.0.0.1:7447",), duration_s=0.0)
+    assert err.value.field == "--identity" and "needs TLS settings" in err.value.message
+    for name, text in (("ca.pem", "CERTIFICATE"), ("c.pem", "CERTIFICATE"), ("c.key", "PRIVATE KEY")):
+        (tmp_path / name).write_text(f"-----BEGIN {text}-----\nMIIB\n-----END {text}-----\n")
+    ident = tmp_path / "gcs.toml"
+    ident.write_text('ca = "ca.pem"\ncertificate = "c.pem"\nprivate_key = "c.key"\n')
+    with pytest.raises(ConfigError) as err:
+        watch(VID, connect=("tcp/127.0.0.1:7447",), duration_s=0.0, identity=ident)
+    assert err.value.field == "--connect" and "unencrypted" in err.value.message
+    ident.write_text('ca = "ca.pem"\ncertificate = "nope.pem"\nprivate_key = "c.key"\n')
+    with pytest.raises(ConfigError) as err:
+        watch(VID, connect=("tls/127.0.0.1:7447",), duration_s=0.0, identity=ident)
+    assert err.value.file == str(ident) and err.value.field == "certificate"

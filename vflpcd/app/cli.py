@@ -148,7 +148,21 @@ def main(argv: list[str] | None = None) -> int:
                    help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT", help="Zenoh endpoint to listen on")
     p.add_argument("--duration", type=float, default=None, help="seconds to watch (default: until Ctrl-C)")
+    p.add_argument("--identity", type=Path, default=None, metavar="FILE",
+                   help="TLS identity file (TOML: ca, certificate, private_key, optional daemon; docs/security.md)")
     p.set_defaults(func=cmd_watch)
+
+    p = sub.add_parser("security", help="security tools (docs/security.md)")
+    security = p.add_subparsers(dest="target", required=True)
+    t = security.add_parser("make-test-ca", help="a test CA and certificates for a bench set-up (bench set-ups only: "
+                                                 "unprotected keys)")
+    t.add_argument("dir", type=Path, help="folder to write to (created; must not hold the files already)")
+    t.add_argument("--daemon-name", default="vflpcd",
+                   help="common name of the daemon's certificate, e.g. the vehicle id (default vflpcd)")
+    t.add_argument("--host", action="append", default=None, metavar="HOST",
+                   help="host name or IP address the daemon is reached at (repeatable; default localhost, 127.0.0.1)")
+    t.add_argument("--days", type=int, default=30, help="validity in days (default 30)")
+    t.set_defaults(func=cmd_make_test_ca)
 
     b = bench.add_parser("loop", help="the daemon's loop timing at a fixed rate with telemetry, replans and GP refits")
     b.add_argument("--mission", type=Path, default=None,
@@ -255,7 +269,18 @@ def cmd_plot(args) -> int:
 def cmd_watch(args) -> int:
     from vflpcd.app.watch import watch
 
-    return watch(args.vehicle_id, connect=tuple(args.connect), listen=tuple(args.listen), duration_s=args.duration)
+    return watch(args.vehicle_id, connect=tuple(args.connect), listen=tuple(args.listen), duration_s=args.duration,
+                 identity=args.identity)
+
+
+def cmd_make_test_ca(args) -> int:
+    from vflpcd.app.testca import DEFAULT_HOSTS, make_test_ca, mission_snippet
+
+    folder = make_test_ca(args.dir, daemon_name=args.daemon_name, hosts=tuple(args.host or DEFAULT_HOSTS),
+                          days=args.days)
+    print(f"wrote a test CA and certificates to {folder} (for bench set-ups only: the keys are not protected)")
+    print(mission_snippet(folder, args.daemon_name))
+    return 0
 
 
 def cmd_bench_loop(args) -> int:

@@ -145,7 +145,7 @@ def _open_telemetry(mission: Mission, platform, header: MissionHeader, closers: 
     from vflpcd.daemon.telemetry import TelemetryPublisher, open_session
 
     try:
-        session = open_session(mission.telemetry)
+        session = open_session(mission.telemetry, vehicle_id=mission.vehicle_id)
     except ConfigError as exc:
         raise ConfigError(mission.file, exc.field, exc.message) from None
     closers.append(session.close)

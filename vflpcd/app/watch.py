@@ -1,7 +1,9 @@
 """``vflpcd watch VEHICLE_ID``: a live table of a running daemon's telemetry.
 
 Subscribes ``vflpc/<vehicle_id>/**`` on a Zenoh peer session (multicast scouting off; the
-endpoints given with ``--connect`` / ``--listen``) and, every ``refresh_s``, renders per topic the
+endpoints given with ``--connect`` / ``--listen``; with ``--identity FILE``, TLS with the
+identity file's certificate, and, when the file names the ``daemon``, telemetry taken from that
+identity only: ``vflpcd.daemon.zenoh_security.IdentityFile``) and, every ``refresh_s``, renders per topic the
 message count, the age of the last message and its value in compact form, then the last five
 events. On a terminal the table is redrawn in place; otherwise one block is printed per refresh.
 Payload fields: ``docs/telemetry.md``.
@@ -141,10 +143,12 @@ def render(vehicle_id: str, board: Board, elapsed_s: float, now: float | None = 
 
 # --------------------------------------------------------------------------- the command
 def watch(vehicle_id: str, connect=(), listen=(), duration_s: float | None = None, out: TextIO = sys.stdout,
-          refresh_s: float = 0.5) -> int:
+          refresh_s: float = 0.5, identity=None) -> int:
     """Render the telemetry of ``vehicle_id`` until ``duration_s`` has passed (None: until
-    Ctrl-C). Returns 0. Bad arguments raise ConfigError("command line", option, ...)."""
+    Ctrl-C). ``identity``: the path of an identity file (TLS). Returns 0. Bad arguments raise
+    ConfigError("command line", option, ...); a bad identity file, ConfigError naming it."""
     from vflpcd.daemon.telemetry import TelemetryConfig, check_endpoint, check_vehicle_id, open_session
+    from vflpcd.daemon.zenoh_security import IdentityFile, endpoint_problem
 
     try:
         check_vehicle_id(vehicle_id)
@@ -155,9 +159,18 @@ def watch(vehicle_id: str, connect=(), listen=(), duration_s: float | None = Non
             problem = check_endpoint(ep, listen=option == "--listen")
             if problem is not None:
                 raise ConfigError("command line", option, problem)
-    cfg = TelemetryConfig(mode="peer", connect=tuple(connect), listen=tuple(listen), multicast_scouting=False)
-    session = open_session(cfg, file="command line",
-                           fields={"connect": "--connect", "listen": "--listen", "mode": "watch", "session": "watch"})
+    ident = IdentityFile.load(identity) if identity is not None else None
+    tls = ident.tls if ident is not None else None
+    problem = endpoint_problem({"--connect": tuple(connect), "--listen": tuple(listen)}, tls)
+    if problem is not None:
+        option, reason = problem
+        raise ConfigError("command line", option if tls is not None else "--identity",
+                          reason + (" (an identity file)" if tls is None else ""))
+    cfg = TelemetryConfig(mode="peer", connect=tuple(connect), listen=tuple(listen), multicast_scouting=False,
+                          tls=tls, access=ident.policy() if ident is not None else None)
+    session = open_session(cfg, vehicle_id=vehicle_id, file="command line",
+                           fields={"connect": "--connect", "listen": "--listen", "mode": "watch", "session": "watch",
+                                   "tls": "--identity", "access": "--identity"})
     board = Board(vehicle_id)
     tty = bool(getattr(out, "isatty", lambda: False)())
     start = time.monotonic()

@@ -6,6 +6,11 @@ input ``vflpc/<vehicle_id>/perception/obstacles`` (read by ``vflpcd.daemon.perce
 Every payload is one UTF-8 JSON object put with the encoding ``application/json``; non-finite
 floats are sent as ``null``. The payload fields are documented in ``docs/telemetry.md``.
 
+The link is open by default (plain TCP on loopback, no access control). ``[telemetry.tls]`` and
+``[telemetry.access]`` (``vflpcd.daemon.zenoh_security``, ``docs/security.md``) make it TLS or
+mutual TLS with Zenoh's access control: then gossip scouting is off as well, so that peers learn
+of no other peers through the daemon.
+
 The control thread never waits on the network: ``offer_tick`` stores the newest ``TickRecord``
 (one attribute assignment); ``offer_event``/``offer_header`` append to a bounded queue. The thread
 "telemetry" publishes the newest tick's payloads every ``1 / rate_hz`` s (only when a newer tick
@@ -30,6 +35,7 @@ import zenoh
 from vflpcd.log.records import json_bytes, Event, MissionHeader, TickRecord
 from vflpcd.base.errors import ConfigError
 from vflpcd.base.tomlread import Table
+from vflpcd.daemon.zenoh_security import AccessConfig, AccessPolicy, TlsConfig, endpoint_problem
 
 log = logging.getLogger("vflpcd.daemon.telemetry")
 
@@ -63,6 +69,11 @@ def key_expressions(vehicle_id: str) -> dict[str, str]:
     keys = {topic: f"{base}/{topic}" for topic in PUBLISHED_TOPICS}
     keys["perception"] = f"{base}/perception/obstacles"
     return keys
+
+
+def key_space(vehicle_id: str) -> str:
+    """``vflpc/<vehicle_id>/**``: every key expression of the vehicle."""
+    return f"vflpc/{check_vehicle_id(vehicle_id)}/**"
 
 
 def check_endpoint(endpoint: Any, *, listen: bool = False) -> str | None:
@@ -102,7 +113,9 @@ class TelemetryConfig:
     the route's bounding box grown by this (m, >= 0); perception_max_speed: largest perceived
     speed (m/s, > 0); perception_max_radius: perceived radii must be below this (m, (0, 100]);
     perception_rate_hz: perception message budget (messages a second, (0, 200]; more are dropped
-    unparsed).
+    unparsed); tls: TLS settings of every endpoint (None: plain links); access: who may do what
+    over the link (Zenoh's access control, keyed by certificate common names; None: anyone may
+    do anything).
     """
 
     enabled: bool = True
@@ -118,14 +131,19 @@ class TelemetryConfig:
     perception_max_speed: float = 40.0
     perception_max_radius: float = 10.0
     perception_rate_hz: float = 50.0
+    tls: TlsConfig | None = None
+    access: AccessPolicy | None = None
 
     @classmethod
     def from_table(cls, table: Table) -> TelemetryConfig:
-        """Validate a ``[telemetry]`` table (all keys optional); raises ConfigError naming the field."""
+        """Validate a ``[telemetry]`` table (all keys optional; files of ``tls`` relative to
+        ``table.file``'s folder); raises ConfigError naming the field."""
         table.check_known({"enabled", "mode", "connect", "listen", "multicast_scouting", "rate_hz",
                            "health_rate_hz", "perception", "perception_max_age_s", "perception_area_margin_m",
-                           "perception_max_speed", "perception_max_radius", "perception_rate_hz"})
+                           "perception_max_speed", "perception_max_radius", "perception_rate_hz", "tls", "access"})
         d = cls()
+        tls = TlsConfig.from_table(table.table("tls")) if table.has("tls") else None
+        access = AccessConfig.from_table(table.table("access")) if table.has("access") else None
         cfg = cls(enabled=table.boolean("enabled", d.enabled),
                   mode=table.string("mode", d.mode, choices=MODES),
                   connect=_endpoints(table, "connect", listen=False),
@@ -141,7 +159,20 @@ class TelemetryConfig:
                   perception_max_radius=table.number("perception_max_radius", d.perception_max_radius,
                                                      positive=True, max=MAX_PERCEPTION_RADIUS_M),
                   perception_rate_hz=table.number("perception_rate_hz", d.perception_rate_hz, positive=True,
-                                                  max=MAX_RATE_HZ))
+                                                  max=MAX_RATE_HZ),
+                  tls=tls, access=access)
+        problem = endpoint_problem({"listen": cfg.listen, "connect": cfg.connect}, tls)
+        if problem is not None:
+            key, reason = problem
+            if tls is None:
+                raise table.error("tls", f"{key}: {reason} (a [telemetry.tls] table)")
+            raise table.error(key, reason)
+        if access is not None and (tls is None or not tls.mutual):
+            raise table.error("access", "access control tells identities apart by their client certificates: "
+                                        "it needs [telemetry.tls] with mutual = true")
+        if access is not None and cfg.perception and not access.perception:
+            raise table.error("access.perception", "perception = true, but no identity may publish it: list the "
+                                                   "perception certificates' common names")
         if cfg.enabled and cfg.mode == "client" and not cfg.connect and not cfg.multicast_scouting:
             raise table.error("connect", "client mode needs at least one endpoint to connect to "
                                          "(or multicast_scouting = true)")
@@ -161,17 +192,28 @@ def _endpoints(table: Table, key: str, *, listen: bool) -> tuple[str, ...]:
 
 
 _FIELDS = {"mode": "telemetry.mode", "connect": "telemetry.connect", "listen": "telemetry.listen",
-           "session": "telemetry"}
+           "session": "telemetry", "tls": "telemetry.tls", "access": "telemetry.access"}
 
 
-def zenoh_config(cfg: TelemetryConfig, *, file=None, fields: dict[str, str] | None = None) -> zenoh.Config:
+def zenoh_config(cfg: TelemetryConfig, *, vehicle_id: str | None = None, file=None,
+                 fields: dict[str, str] | None = None) -> zenoh.Config:
     """The zenoh.Config of ``cfg``: mode, connect/endpoints, listen/endpoints,
-    scouting/multicast/enabled. A value Zenoh refuses raises ConfigError naming the field."""
+    scouting/multicast/enabled; with ``cfg.tls`` also transport/link/tls and scouting/gossip/enabled
+    = false; with ``cfg.access`` its access_control for the key expressions of ``vehicle_id``
+    (required then). A value Zenoh refuses raises ConfigError naming the field."""
     names = {**_FIELDS, **(fields or {})}
+    settings = [("mode", cfg.mode, "mode"), ("connect/endpoints", list(cfg.connect), "connect"),
+                ("listen/endpoints", list(cfg.listen), "listen"),
+                ("scouting/multicast/enabled", bool(cfg.multicast_scouting), "session")]
+    if cfg.tls is not None:
+        settings += [("transport/link/tls", cfg.tls.zenoh_json(), "tls"), ("scouting/gossip/enabled", False, "tls")]
+    if cfg.access is not None:
+        if vehicle_id is None:
+            raise ValueError("access control needs the vehicle id whose key expressions it guards")
+        settings.append(("access_control", cfg.access.access_control(key_expressions(vehicle_id),
+                                                                     key_space(vehicle_id)), "access"))
     zc = zenoh.Config()
-    for key, value, name in (("mode", cfg.mode, "mode"), ("connect/endpoints", list(cfg.connect), "connect"),
-                             ("listen/endpoints", list(cfg.listen), "listen"),
-                             ("scouting/multicast/enabled", bool(cfg.multicast_scouting), "session")):
+    for key, value, name in settings:
         try:
             zc.insert_json5(key, json.dumps(value))
         except zenoh.ZError as exc:
@@ -179,16 +221,21 @@ def zenoh_config(cfg: TelemetryConfig, *, file=None, fields: dict[str, str] | No
     return zc
 
 
-def open_session(cfg: TelemetryConfig, *, file=None, fields: dict[str, str] | None = None) -> zenoh.Session:
-    """Open a Zenoh session for ``cfg``. A listen endpoint already in use raises
-    ``ConfigError(file, "telemetry.listen", "... in use ...")``; any other failure raises a
-    ConfigError naming the telemetry field (``fields`` renames them, e.g. for command-line options)."""
+def open_session(cfg: TelemetryConfig, *, vehicle_id: str | None = None, file=None,
+                 fields: dict[str, str] | None = None) -> zenoh.Session:
+    """Open a Zenoh session for ``cfg`` (``zenoh_config``; ``vehicle_id``: whose key expressions
+    the access control guards). A listen endpoint already in use raises
+    ``ConfigError(file, "telemetry.listen", "... in use ...")``; certificates or keys Zenoh cannot
+    use raise it naming ``telemetry.tls``; any other failure raises a ConfigError naming the
+    telemetry field (``fields`` renames them, e.g. for command-line options)."""
     names = {**_FIELDS, **(fields or {})}
-    zc = zenoh_config(cfg, file=file, fields=fields)
+    zc = zenoh_config(cfg, vehicle_id=vehicle_id, file=file, fields=fields)
     try:
         return zenoh.open(zc)
     except zenoh.ZError as exc:
         text = str(exc)
+        if cfg.tls is not None and ("TLS" in text or "certificate" in text.lower()):
+            raise ConfigError(file, names["tls"], f"Zenoh cannot use the certificates: {_first_line(exc)}") from None
         if "in use" in text:
             eps = [ep for ep in cfg.listen if ep.rsplit(":", 1)[-1] in text] or list(cfg.listen)
             raise ConfigError(file, names["listen"], f"endpoint {', '.join(eps)} is already in use "
