@@ -27,6 +27,7 @@ from vflpcd.base.paths import config_dir
 FRAME_ERRORS = ("unknown_id", "dlc", "checksum", "range", "counter")
 COUNTER_MODULO = 16
 MODES = {0: "manual", 1: "ready", 2: "automatic", 3: "braking", 4: "stopped"}
+LINK_MESSAGES = ("VehicleCmd", "VehicleStatus", "InsPosition", "InsHeadingVelocity")   # the vehicle link's
 
 
 def default_dbc() -> Path:

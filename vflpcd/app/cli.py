@@ -236,7 +236,9 @@ def cmd_check(args) -> int:
 
     mission = load_mission(args.mission)
     controller = build_controller(mission)
-    build_platform(mission)
+    platform = build_platform(mission)
+    for warning in platform.link_warnings():
+        print(f"{mission.file}: warning: {warning}", file=sys.stderr)
     print(f"{mission.file}: ok: vehicle {mission.vehicle_id}, {mission.platform.kind} platform, route "
           f"{mission.scenario.name} ({mission.scenario.platform}), controller {controller.name} at "
           f"{mission.loop.rate_hz:g} Hz, {mission.workers.executor} workers, telemetry "
