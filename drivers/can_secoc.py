@@ -20,8 +20,10 @@ increases by at least one per frame and keeps up with the clock, so a restarted 
 above everything it sent before (while it sends fewer than 1000 frames a second of a message
 and its clock is not set back).
 
-Reception (``Receiver``, per message): a data frame is held until its cryptographic PDU comes
-(at most ``PENDING`` frames of an id wait). The full freshness value is reconstructed from the
+Reception (``Receiver``, per message): a data frame is held until its cryptographic PDU comes;
+at most ``PENDING`` frames of an id wait (the oldest beyond them is dropped), so that frames
+injected between a sender's data frame and its PDU do not make it lose the frame. A PDU is
+checked against the waiting frames, newest first, and takes the one its MAC verifies. The full freshness value is reconstructed from the
 received low bits as the value nearest the reference (the newest accepted value; before the
 first one, the receiver's own clock): a window of half the low bits' range on either side.
 SecOC's rule takes the next value above the newest; reaching back as far as forward lets a
@@ -31,9 +33,12 @@ id must also be at most ``clock_skew_s`` behind the receiver's clock (a recordin
 receiver that has just started). Rejected frames are counted by kind (``AUTH_ERRORS``):
 
 - ``replayed``: the MAC verifies, the freshness value is not newer (a replayed or reordered frame);
-- ``forged``: the MAC does not verify (a forged or altered frame, or a cryptographic PDU with no
-  frame before it);
-- ``unauthenticated``: a data frame no cryptographic PDU followed (a plain-profile sender's).
+- ``forged``: a cryptographic PDU whose MAC verifies none of the waiting frames (forged or
+  altered, or with no frame before it);
+- ``unauthenticated``: a data frame that no cryptographic PDU authenticated while it waited (a
+  plain-profile sender's, or the data frame of a forged pair). Each frame is counted once: a
+  forged pair counts its PDU as ``forged`` and, once it is pushed out, its data frame as
+  ``unauthenticated``.
 """
 
 from __future__ import annotations
@@ -53,7 +58,7 @@ MAC_BYTES = 4
 AUTH_ID_OFFSET = 0x80          # the cryptographic PDU's id: the authentic PDU's + 0x80
 AUTH_SUFFIX = "Auth"           # and its name: the authentic PDU's + "Auth"
 MIN_KEY_BYTES = 16             # 128 bits, SecOC's AES-128 key length
-PENDING = 2                    # data frames of one id waiting for their cryptographic PDU
+PENDING = 4                    # data frames of one id waiting for their cryptographic PDU
 DEFAULT_CLOCK_SKEW_S = 2.0
 
 
@@ -164,18 +169,14 @@ class Receiver:
         now = self.clock_ms()
         newest = self._newest.get(frame_id)
         freshness = reconstruct(low, newest if newest is not None else now)
-        for k in range(len(pending) - 1, -1, -1):          # newest first: a frame injected before ours
+        for k in range(len(pending) - 1, -1, -1):          # newest first; frames injected around ours wait on
             frame = pending[k]
             if hmac.compare_digest(mac(self.key, frame_id, bytes(frame.data), freshness), tag):
                 break
         else:
-            pending.pop()                                   # the frame the forged PDU followed
-            self._reject("forged", frame_id, f"0x{frame_id:X}: bad MAC")
+            self._reject("forged", frame_id, f"0x{frame_id + AUTH_ID_OFFSET:X}: the MAC verifies no waiting frame")
             return None
-        for _ in range(k):                                  # older frames no PDU authenticated
-            pending.popleft()
-            self._reject("unauthenticated", frame_id, f"0x{frame_id:X} without its authentication PDU")
-        pending.popleft()
+        del pending[k]
         if newest is not None and freshness <= newest:
             self._reject("replayed", frame_id, f"0x{frame_id:X}: freshness {freshness} not above {newest}")
             return None

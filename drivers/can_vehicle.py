@@ -346,11 +346,11 @@ class CanVehicle(PlatformBase):
     # ------------------------------------------------------------------ receive
     async def _receive(self, reader: can.AsyncBufferedReader) -> None:
         async for msg in reader:
-            if self._auth_rx is not None:
-                msg = self._auth_rx.feed(msg)
-                if msg is None:
-                    continue
             try:
+                if self._auth_rx is not None:
+                    msg = self._auth_rx.feed(msg)
+                    if msg is None:
+                        continue
                 frame = self.codec.decode(msg)
             except FrameError as exc:
                 self._count_bad(exc.kind, str(exc))

@@ -10,7 +10,7 @@ import pytest
 
 from drivers.can_bus import BusConfig
 from drivers.can_codec import FRAME_ERRORS, CounterSource, VehicleCan, checksum
-from drivers.can_secoc import AUTH_ERRORS, AuthConfig, Sender
+from drivers.can_secoc import AUTH_ERRORS, PENDING, AuthConfig, Sender
 from drivers.can_vehicle import CanVehicle, can_vehicle_from_scenario
 from vflpcd.config.vehicles import BicycleConfig
 from vflpcd.config.scenarios import load_scenario
@@ -316,7 +316,7 @@ def test_an_authenticated_link_uses_authenticated_frames_only_and_counts_the_oth
         await _settle()
         spoof = attacker.codec.encode("InsPosition", {"PosX": 40.0, "PosY": -7.0})
         for _ in range(3):
-            attacker.bus.send(spoof)                           # unauthenticated (2 wait for a PDU)
+            attacker.bus.send(spoof)                           # unauthenticated
         attacker.bus.send(can.Message(arbitration_id=0x380, data=bytes(8), is_extended_id=False))     # forged
         attacker.bus.send(recorded)
         attacker.bus.send(recorded_auth)                       # older than what was accepted: replayed
@@ -358,8 +358,10 @@ def test_an_authenticated_link_uses_authenticated_frames_only_and_counts_the_oth
         return counts, fault, stats, healthy, foreign
 
     counts, fault, stats, healthy, foreign = asyncio.run(main())
-    # each spoofed position once (the forged PDU takes the newest waiting one with it), the replay once
-    assert (counts["unauthenticated"], counts["forged"], counts["replayed"]) == (2, 1, 1), counts
+    # the forged PDU and the replay at once; the 3 spoofed positions wait for a PDU, and are pushed out
+    # (unauthenticated) by the frames that come after them
+    assert (counts["unauthenticated"], counts["forged"], counts["replayed"]) == (0, 1, 1), counts
+    assert stats["bad_frames"]["unauthenticated"] == 3 + 20 - PENDING and stats["bad_frames"]["forged"] == 21
     assert "no authenticated INS frames" in fault and "rejected" in fault, fault
     assert stats["authenticated"] and stats["auth_rejected"]["InsPosition"] >= 20
     assert stats["auth_rejected"]["VehicleCmd"] == 1 and stats["bad_frames"]["replayed"] == 2
