@@ -29,6 +29,7 @@ FRAME_ERRORS = ("unknown_id", "dlc", "checksum", "range", "counter")
 COUNTER_MODULO = 16
 MODES = {0: "manual", 1: "ready", 2: "automatic", 3: "braking", 4: "stopped"}
 DBC_ENCODING = "cp1252"         # the DBC format's text encoding (cantools' and the CAN tools' default)
+LINK_MESSAGES = ("VehicleCmd", "VehicleStatus", "InsPosition", "InsHeadingVelocity")   # the vehicle link's
 
 
 def default_dbc() -> Path:

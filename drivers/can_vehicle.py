@@ -27,6 +27,16 @@ reported a standstill; the daemon waits for it before it exits.
 ``close`` sends Enable = 0 as the last command of an engaged vehicle (the hand-back: the ECU
 brakes to ``ready``).
 
+Authentication (``auth``, the mission's ``auth_key``; ``drivers/can_secoc.py``): every
+VehicleCmd frame is followed by its authentication PDU (freshness value and truncated MAC), and
+VehicleStatus and INS frames are used only when theirs verifies and is fresh; replayed, forged
+and unauthenticated (plain-profile) frames are dropped and counted by kind in ``bad_frames``
+(by message in ``auth_rejected``). INS frames that fail authentication do not refresh the state:
+a run of them is the stale state of ``state_timeout`` and the fault says how many were rejected.
+A foreign VehicleCmd that authenticates with a freshness value at or below the driver's own
+newest one is a replay and is counted only; one above it (a second sender with the key) is
+the foreign-command fault. Without ``auth`` (the plain profile) authentication PDUs are ignored.
+
 ``bus_log``: every frame received and sent, in python-can's format for the file's suffix
 (.asc, .log, .blf), readable by cantools with the same DBC.
 """
@@ -43,7 +53,10 @@ import can
 import numpy as np
 
 from drivers.can_bus import BusConfig, bus_config, open_bus
-from drivers.can_codec import FRAME_ERRORS, MODES, AliveCounter, CounterSource, FrameError, VehicleCan
+from drivers.can_codec import (FRAME_ERRORS, LINK_MESSAGES, MODES, AliveCounter, CounterSource, FrameError,
+                                VehicleCan)
+from drivers.can_secoc import (AUTH_ERRORS, AUTH_SUFFIX, AuthConfig, AuthError, Receiver, Sender, auth_config,
+                                secured_ids)
 from vflpcd.core.ports import PlatformBase, StampedState
 
 log = logging.getLogger("drivers.can_vehicle")
@@ -53,6 +66,7 @@ CONTROL_NAMES = ("a_x", "delta_f")
 BUS_LOG_FORMATS = ("", "asc", "log", "blf")
 STANDSTILL = 0.05          # m/s
 FOREIGN_WINDOW_S = 1.0     # s: another sender's VehicleCmd this recent is a fault
+INS = ("InsPosition", "InsHeadingVelocity")
 
 
 class _LockedLogger(can.Listener):
@@ -86,19 +100,32 @@ class _ErrorListener(can.Listener):
 class CanVehicle(PlatformBase):
     """``bus``: which bus to open; ``limits``: the vehicle's ``BicycleLimits`` (a_min, a_max,
     delta_max); ``codec``: the DBC; ``state_timeout``, ``command_hold``, ``reconnect_s`` in s;
-    ``bus_log``: a file to record the traffic to (None: no recording)."""
+    ``bus_log``: a file to record the traffic to (None: no recording); ``auth``: the link's
+    authentication (None: the plain profile; ValueError when the DBC lacks its PDUs)."""
 
     state_names = STATE_NAMES
     control_names = CONTROL_NAMES
 
     def __init__(self, bus: BusConfig, limits, codec: VehicleCan | None = None, *, state_timeout: float = 0.1,
-                 command_hold: float = 0.1, reconnect_s: float = 0.5, bus_log: Path | None = None) -> None:
+                 command_hold: float = 0.1, reconnect_s: float = 0.5, bus_log: Path | None = None,
+                 auth: AuthConfig | None = None) -> None:
         self.bus_cfg, self.limits = bus, limits
         self.codec = codec or VehicleCan()
         self.state_timeout, self.command_hold, self.reconnect_s = state_timeout, command_hold, reconnect_s
         self.bus_log = bus_log
         self.cycle_s = self.codec.message("VehicleCmd").cycle_time * 1e-3
-        self.bad_frames = dict.fromkeys(FRAME_ERRORS, 0)
+        self.bad_frames = dict.fromkeys(FRAME_ERRORS + AUTH_ERRORS, 0)
+        self.auth = auth
+        self.auth_rejected = dict.fromkeys(LINK_MESSAGES, 0)  # frames failing authentication, by message
+        self._ins_rejected = 0                                 # INS frames rejected since the last good one
+        self._auth_tx: Sender | None = None
+        self._auth_rx: Receiver | None = None
+        if auth is not None:
+            ids = secured_ids(self.codec.db, LINK_MESSAGES)
+            self._names = {i: n for n, i in ids.items()}
+            self._cmd_id = ids["VehicleCmd"]
+            self._auth_tx = Sender(auth.key)
+            self._auth_rx = Receiver(auth.key, ids.values(), self._on_auth_reject, clock_skew_s=auth.clock_skew_s)
         self.frames_ok = 0
         self.foreign_commands = 0            # VehicleCmd frames from another sender (replayed, forged, a second master)
         self._foreign_ns: int | None = None
@@ -158,6 +185,9 @@ class CanVehicle(PlatformBase):
             return f"CAN bus down ({self._bus_error})"
         now = time.monotonic_ns()
         if self._last_rx_ns is None or now - self._last_rx_ns > self.state_timeout * 1e9:
+            if self._ins_rejected:
+                return (f"no authenticated INS frames for {self.state_timeout:g} s on {self.bus_cfg.describe()} "
+                        f"({self._ins_rejected} rejected)")
             return f"no INS frames for {self.state_timeout:g} s on {self.bus_cfg.describe()}"
         if self._enabled and self.failsafe_reason is None:
             if self.ecu_mode == "manual":
@@ -209,7 +239,14 @@ class CanVehicle(PlatformBase):
     def link_stats(self) -> dict:
         return {"frames_ok": self.frames_ok, "frames_sent": self.frames_sent, "bad_frames": dict(self.bad_frames),
                 "undecodable": self.undecodable, "foreign_commands": self.foreign_commands,
-                "send_failures": self.send_failures, "reconnects": self.reconnects, "ecu_mode": self.ecu_mode}
+                "send_failures": self.send_failures, "reconnects": self.reconnects, "ecu_mode": self.ecu_mode,
+                "authenticated": self.auth is not None, "auth_rejected": dict(self.auth_rejected)}
+
+    def link_warnings(self) -> tuple[str, ...]:
+        if self.auth is None:
+            return ("the CAN link is not authenticated (no [platform] auth_key): replayed or forged frames "
+                    "on the bus cannot be told from the vehicle's",)
+        return ()
 
     # ------------------------------------------------------------------ bus
     async def _open(self, aio) -> None:
@@ -223,7 +260,7 @@ class CanVehicle(PlatformBase):
         if self._rx_task is not None:
             self._rx_task.cancel()
         self._rx_task = asyncio.create_task(self._receive(self._reader), name="can-receive")
-        log.info("event=bus_open bus=%s", self.bus_cfg.describe())
+        log.info("event=bus_open bus=%s authenticated=%s", self.bus_cfg.describe(), self.auth is not None)
 
     def _on_bus_error(self, exc: Exception) -> None:
         """The notifier's receive thread failed (called on the loop): the supervisor reopens the bus."""
@@ -270,15 +307,22 @@ class CanVehicle(PlatformBase):
         frame = self.codec.encode("VehicleCmd", {"AccelCmd": accel, "SteerAngleCmd": steer, "Enable": int(enable),
                                                  "AliveCounter": self._counter.take()})
         frame.timestamp = time.time()
+        frames = [frame]
+        if self._auth_tx is not None:
+            frames.append(self._auth_tx.protect(frame))
+            frames[1].timestamp = frame.timestamp
+            self._auth_rx.raise_floor(self._cmd_id, self._auth_tx.freshness(self._cmd_id))
         try:
-            self._bus.send(frame)
+            for f in frames:
+                self._bus.send(f)
         except Exception as exc:                 # python-can and the remote hub raise their own types
             self.send_failures += 1
             self._bus_error = f"send failed: {type(exc).__name__}: {exc}"
             return
         self.frames_sent += 1
         if self._logger is not None:
-            self._logger.on_message_received(frame)
+            for f in frames:
+                self._logger.on_message_received(f)
 
     async def _cyclic_sender(self) -> None:
         """VehicleCmd at its cycle time: the fresh command between ticks, or the safe action."""
@@ -303,6 +347,10 @@ class CanVehicle(PlatformBase):
     async def _receive(self, reader: can.AsyncBufferedReader) -> None:
         async for msg in reader:
             try:
+                if self._auth_rx is not None:
+                    msg = self._auth_rx.feed(msg)
+                    if msg is None:
+                        continue
                 frame = self.codec.decode(msg)
             except FrameError as exc:
                 self._count_bad(exc.kind, str(exc))
@@ -318,8 +366,17 @@ class CanVehicle(PlatformBase):
         if sum(self.bad_frames.values()) in (1, 10, 100, 1000, 10000):
             log.warning("event=bad_frames counts=%s last=%s", self.bad_frames, detail)
 
+    def _on_auth_reject(self, exc: AuthError) -> None:
+        name = self._names[exc.frame_id]
+        self.auth_rejected[name] += 1
+        if name in INS:
+            self._ins_rejected += 1
+        self._count_bad(exc.kind, str(exc))
+
     def _take(self, name: str, signals: dict) -> None:
         now = time.monotonic_ns()
+        if name.endswith(AUTH_SUFFIX):             # the plain profile: another node's authentication PDUs
+            return
         if name == "VehicleCmd":                   # the bus does not echo our own: another node commands
             self.foreign_commands += 1
             self._foreign_ns = now
@@ -337,6 +394,7 @@ class CanVehicle(PlatformBase):
             self._speed = float(signals["Speed"])
         elif name == "InsHeadingVelocity":
             self._last_rx_ns = now
+            self._ins_rejected = 0
             self._assemble()
 
     def _assemble(self) -> None:
@@ -351,27 +409,34 @@ class CanVehicle(PlatformBase):
 
 def can_vehicle_from_scenario(scenario, options: dict, file=None, bus_log_stem: Path | None = None) -> CanVehicle:
     """The CAN vehicle of a mission. ``options``: the mission's [platform] table without ``kind``
-    (interface, channel, dbc, state_timeout, command_hold, bus_log); ``bus_log_stem``: the flight
-    log's path, whose suffix becomes ``bus_log``'s."""
+    (interface, channel, dbc, state_timeout, command_hold, bus_log, auth_key, auth_clock_skew);
+    ``bus_log_stem``: the flight log's path, whose suffix becomes ``bus_log``'s."""
     from vflpcd.config.vehicles import BicycleConfig
     from vflpcd.base.tomlread import Table
 
     t = Table(options, file, "platform")
-    t.check_known({"interface", "channel", "dbc", "state_timeout", "command_hold", "bus_log"})
+    t.check_known({"interface", "channel", "dbc", "state_timeout", "command_hold", "bus_log", "auth_key",
+                   "auth_clock_skew"})
     bus = bus_config(t)
     dbc = t.string("dbc", "")
     try:
         codec = VehicleCan(_resolve(dbc, file) if dbc else None)
     except Exception as exc:                     # cantools raises its own parse errors
         raise t.error("dbc", f"cannot load the CAN database: {exc}") from None
-    missing = {"VehicleCmd", "VehicleStatus", "InsPosition", "InsHeadingVelocity"} - {m.name for m in codec.db.messages}
+    missing = set(LINK_MESSAGES) - {m.name for m in codec.db.messages}
     if missing:
         raise t.error("dbc", f"the CAN database lacks {', '.join(sorted(missing))}")
+    auth = auth_config(t, file)
+    if auth is not None:
+        try:
+            secured_ids(codec.db, LINK_MESSAGES)
+        except ValueError as exc:
+            raise t.error("dbc", str(exc)) from None
     fmt = t.string("bus_log", "asc", choices=BUS_LOG_FORMATS)
     log_file = bus_log_stem.with_suffix(f".{fmt}") if fmt and bus_log_stem is not None else None
     return CanVehicle(bus, BicycleConfig.load(scenario.params).limits, codec,
                       state_timeout=t.number("state_timeout", 0.1, min=0.02, max=5.0),
-                      command_hold=t.number("command_hold", 0.1, min=0.02, max=1.0), bus_log=log_file)
+                      command_hold=t.number("command_hold", 0.1, min=0.02, max=1.0), bus_log=log_file, auth=auth)
 
 
 def _resolve(name: str, mission_file) -> Path:

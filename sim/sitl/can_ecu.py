@@ -26,6 +26,12 @@ alive-counter errors within one second while automatic (frames replayed or injec
 commander's) take the vehicle over like a command timeout, with FaultBadCounter held: braking,
 then a latched ``stopped`` (0 turns it off).
 
+Authentication (the mission's ``[platform] auth_key``, the daemon's key; ``drivers/can_secoc.py``):
+every frame the ECU and the INS send is followed by its authentication PDU, and a VehicleCmd is
+followed only when its own verifies and its freshness value is newer than any before. Replayed,
+forged and unauthenticated (plain-profile) commands are dropped before any other check and
+counted by kind in ``bad_frames``; they take nothing over, the authenticated stream goes on.
+
 A bus that fails (e.g. the python-can-remote hub goes away) counts as a command loss: the ECU
 brakes and reopens the bus every 0.5 s. Nothing a peer sends can stop the loop.
 """
@@ -40,7 +46,9 @@ import time
 
 import numpy as np
 
-from drivers.can_codec import FRAME_ERRORS, MODES, AliveCounter, CounterSource, FrameError, VehicleCan
+from drivers.can_codec import (FRAME_ERRORS, LINK_MESSAGES, MODES, AliveCounter, CounterSource, FrameError,
+                                VehicleCan)
+from drivers.can_secoc import AUTH_ERRORS, AuthConfig, AuthError, Receiver, Sender, secured_ids
 
 log = logging.getLogger("sim.sitl.can_ecu")
 
@@ -52,10 +60,11 @@ FAULT_BITS = {"counter": "FaultBadCounter", "checksum": "FaultBadChecksum", "ran
 
 class CanEcu:
     """``bus_factory()``: opens the bus (called again after a bus error); ``plant``: a DynamicBicycle
-    at its start state; ``limits``: its BicycleLimits; ``codec``: the DBC."""
+    at its start state; ``limits``: its BicycleLimits; ``codec``: the DBC; ``auth``: the link's
+    authentication (None: the plain profile)."""
 
     def __init__(self, bus_factory, plant, limits, codec: VehicleCan, *, cmd_timeout_s: float = 0.1,
-                 physics_rate_hz: float = 200.0, max_counter_errors: int = 5) -> None:
+                 physics_rate_hz: float = 200.0, max_counter_errors: int = 5, auth: AuthConfig | None = None) -> None:
         self.bus_factory, self.plant, self.limits, self.codec = bus_factory, plant, limits, codec
         self.cmd_timeout_s, self.dt = cmd_timeout_s, 1.0 / physics_rate_hz
         self.max_counter_errors = max_counter_errors
@@ -75,7 +84,16 @@ class CanEcu:
         self._warned: dict[str, float] = {}
         self.counts = {"commands_ok": 0, "timeouts": 0, "counter_errors": 0, "bus_errors": 0, "status_sent": 0,
                        "ins_sent": 0, "reopens": 0, "malformed": 0}
-        self.bad_frames = dict.fromkeys(FRAME_ERRORS, 0)
+        self.bad_frames = dict.fromkeys(FRAME_ERRORS + AUTH_ERRORS, 0)
+        self._ids = {m.frame_id for m in codec.db.messages}
+        self._cmd_id = codec.message("VehicleCmd").frame_id
+        self.auth = auth
+        self._auth_tx = self._auth_rx = None
+        if auth is not None:
+            ids = secured_ids(codec.db, LINK_MESSAGES)
+            self._auth_tx = Sender(auth.key)
+            self._auth_rx = Receiver(auth.key, (ids["VehicleCmd"],), self._on_auth_reject,
+                                     clock_skew_s=auth.clock_skew_s)
         self.status_period = codec.message("VehicleStatus").cycle_time * 1e-3
         self.ins_period = codec.message("InsPosition").cycle_time * 1e-3
 
@@ -189,8 +207,12 @@ class CanEcu:
             self._warn("malformed", f"event=malformed_frame reason={type(exc).__name__}: {exc}")
 
     def _on_frame(self, msg) -> None:
-        if msg.arbitration_id != 0x100 or msg.is_extended_id:
-            if msg.arbitration_id not in (0x200, 0x300, 0x301) or msg.is_extended_id:
+        if self._auth_rx is not None:
+            msg = self._auth_rx.feed(msg)
+            if msg is None:
+                return
+        if msg.arbitration_id != self._cmd_id or msg.is_extended_id:
+            if msg.arbitration_id not in self._ids or msg.is_extended_id:
                 self._bad("unknown_id", f"id 0x{msg.arbitration_id:X}")
             return
         try:
@@ -221,6 +243,9 @@ class CanEcu:
             bit = FAULT_BITS[kind]
             self._fault_until[bit] = max(self._fault_until[bit], time.monotonic() + FAULT_HOLD_S)
         self._warn(kind, f"event=bad_frame kind={kind} detail={detail} counts={self.bad_frames}")
+
+    def _on_auth_reject(self, exc: AuthError) -> None:
+        self._bad(exc.kind, str(exc))
 
     def _counter_error(self) -> None:
         """End-to-end supervision: too many counter errors in a second take the vehicle over."""
@@ -262,8 +287,11 @@ class CanEcu:
             if s.name in signals:
                 v = float(signals[s.name])
                 clamped[s.name] = min(max(v, s.minimum), s.maximum) if np.isfinite(v) else 0.0
+        frame = self.codec.encode(name, clamped)
         try:
-            self._bus.send(self.codec.encode(name, clamped))
+            self._bus.send(frame)
+            if self._auth_tx is not None:
+                self._bus.send(self._auth_tx.protect(frame))
             return True
         except Exception as exc:
             self._bus_error(exc)
@@ -311,6 +339,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from drivers.can_bus import BusConfig, bus_config, open_bus
+    from drivers.can_secoc import auth_config
     from sim.plants import make_plant
     from vflpcd.config.vehicles import BicycleConfig
     from vflpcd.base.errors import ConfigError
@@ -329,7 +358,9 @@ def run(args) -> int:
     mission = load_mission(args.mission)
     if mission.platform.kind != "can":
         raise ConfigError(mission.file, "platform.kind", f"the ECU mock plays can platforms, not {mission.platform.kind}")
-    base = bus_config(Table(mission.platform.options, mission.file, "platform"))
+    table = Table(mission.platform.options, mission.file, "platform")
+    base = bus_config(table)
+    auth = auth_config(table, mission.file)
     try:
         cfg = BusConfig(args.interface or base.interface, args.channel or base.channel)
     except ValueError as exc:
@@ -338,6 +369,11 @@ def run(args) -> int:
         codec = VehicleCan(args.dbc)
     except Exception as exc:
         raise ConfigError("command line", "--dbc", f"cannot load the CAN database: {exc}") from None
+    if auth is not None:
+        try:
+            secured_ids(codec.db, LINK_MESSAGES)
+        except ValueError as exc:
+            raise ConfigError("command line", "--dbc", str(exc)) from None
     bus = _open_with_retry(open_bus, cfg, args.connect_timeout)
     if bus is None:
         print(f"vflpcd sitl can-ecu: error: cannot open {cfg.describe()} within {args.connect_timeout:g} s")
@@ -350,12 +386,13 @@ def run(args) -> int:
     sc = mission.scenario
     ecu = CanEcu(factory, make_plant(sc, args.seed), BicycleConfig.load(sc.params).limits, codec,
                  cmd_timeout_s=args.cmd_timeout, physics_rate_hz=args.physics_rate,
-                 max_counter_errors=args.max_counter_errors)
+                 max_counter_errors=args.max_counter_errors, auth=auth)
     stop = threading.Event()
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, lambda *_: stop.set())
-    log.info("event=ecu_started bus=%s scenario=%s cmd_timeout=%.3f", cfg.describe(), sc.name, args.cmd_timeout)
+    log.info("event=ecu_started bus=%s scenario=%s cmd_timeout=%.3f authenticated=%s", cfg.describe(), sc.name,
+             args.cmd_timeout, auth is not None)
     ecu.serve_forever(stop)
     print(json.dumps({"ecu_stats": ecu.stats()}), flush=True)
     return 0

@@ -251,7 +251,9 @@ def cmd_check(args) -> int:
     from vflpcd.app.run import build_platform
 
     controller = build_controller(mission)
-    build_platform(mission)
+    platform = build_platform(mission)
+    for warning in platform.link_warnings():
+        print(f"{mission.file}: warning: {warning}", file=sys.stderr)
     print(f"{mission.file}: ok: vehicle {mission.vehicle_id}, {mission.platform.kind} platform, route "
           f"{mission.scenario.name} ({mission.scenario.platform}), controller {controller.name} at "
           f"{mission.loop.rate_hz:g} Hz, {mission.workers.executor} workers, telemetry "

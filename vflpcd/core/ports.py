@@ -67,8 +67,8 @@ class StampedState:
 class Platform(Protocol):
     """A vehicle link: connect, enable (arm), read the latest state, send commands, fail safe.
 
-    The optional members (``prepare``, ``fault``, ``at_rest``, ``link_stats``, ``inject``) and the
-    ``safe_action`` are declared, with safe defaults, by ``PlatformBase``.
+    The optional members (``prepare``, ``fault``, ``at_rest``, ``link_stats``, ``link_warnings``,
+    ``inject``) and the ``safe_action`` are declared, with safe defaults, by ``PlatformBase``.
     """
 
     state_names: tuple[str, ...]
@@ -154,7 +154,7 @@ class ControllerBase:
 class PlatformBase:
     """The ``Platform`` port with safe defaults for its optional members: ``prepare`` does nothing
     (``prepares`` False; the quadrotor arms and takes off), no link ``fault``, ``at_rest`` unknown
-    (None), no ``link_stats``, no fault injection (``injects_faults`` False). ``safe_action`` names
+    (None), no ``link_stats`` and no ``link_warnings``, no fault injection (``injects_faults`` False). ``safe_action`` names
     what ``failsafe`` does: "brake_to_stop" (ground) or "hold_then_land" (aerial)."""
 
     state_names: tuple[str, ...]
@@ -196,6 +196,10 @@ class PlatformBase:
     def link_stats(self) -> dict:
         """The link's counters for the log ({} without any)."""
         return {}
+
+    def link_warnings(self) -> tuple[str, ...]:
+        """Weaknesses of the link as configured, one line each, for ``vflpcd check`` (default: none)."""
+        return ()
 
     def inject(self, fault: str | None) -> None:
         """Start (or with None end) an injected fault (drills); only where ``injects_faults``."""

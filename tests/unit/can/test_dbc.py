@@ -18,7 +18,9 @@ def db():
 def test_messages_ids_and_cycle_times(db):
     got = {m.name: (m.frame_id, m.length, m.cycle_time) for m in db.messages}
     assert got == {"VehicleCmd": (0x100, 8, 20), "VehicleStatus": (0x200, 8, 20),
-                   "InsPosition": (0x300, 8, 10), "InsHeadingVelocity": (0x301, 8, 10)}
+                   "InsPosition": (0x300, 8, 10), "InsHeadingVelocity": (0x301, 8, 10),
+                   "VehicleCmdAuth": (0x180, 8, 20), "VehicleStatusAuth": (0x280, 8, 20),
+                   "InsPositionAuth": (0x380, 8, 10), "InsHeadingVelocityAuth": (0x381, 8, 10)}
 
 
 @pytest.mark.parametrize("params", ["nominal", "exact"])

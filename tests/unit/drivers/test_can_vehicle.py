@@ -10,31 +10,39 @@ import pytest
 
 from drivers.can_bus import BusConfig
 from drivers.can_codec import FRAME_ERRORS, CounterSource, VehicleCan, checksum
+from drivers.can_secoc import AUTH_ERRORS, PENDING, AuthConfig, Sender
 from drivers.can_vehicle import CanVehicle, can_vehicle_from_scenario
 from vflpcd.config.vehicles import BicycleConfig
 from vflpcd.config.scenarios import load_scenario
 from vflpcd.base.errors import ConfigError
 
 LIMITS = BicycleConfig.load("nominal").limits
+KEY = bytes(range(100, 132))
 
 
 class Node:
     """The vehicle side, scripted: sends INS and status frames, records the commands it receives."""
 
-    def __init__(self, channel: str) -> None:
+    def __init__(self, channel: str, key: bytes | None = None) -> None:
         self.bus = can.Bus(interface="virtual", channel=channel)
         self.codec = VehicleCan()
         self.counter = CounterSource()
+        self.auth = Sender(key) if key is not None else None
+
+    def send(self, frame: can.Message) -> None:
+        self.bus.send(frame)
+        if self.auth is not None:
+            self.bus.send(self.auth.protect(frame))
 
     def publish(self, x=(1.0, 2.0, 0.3, 5.0, 0.1, 0.05), mode=2, speed=None, faults=None, steer=0.02) -> None:
         c = self.codec
-        self.bus.send(c.encode("InsPosition", {"PosX": x[0], "PosY": x[1]}))
-        self.bus.send(c.encode("VehicleStatus", {"Speed": x[3] if speed is None else speed, "YawRate": x[5],
-                                                 "SteerAngle": steer, "Mode": mode,
-                                                 **(faults or dict.fromkeys(("FaultCmdTimeout", "FaultBadCounter",
-                                                                             "FaultBadChecksum", "FaultOutOfRange"), 0))}))
-        self.bus.send(c.encode("InsHeadingVelocity", {"Heading": x[2], "VelX": x[3], "VelY": x[4],
-                                                      "AliveCounter": self.counter.take()}))
+        self.send(c.encode("InsPosition", {"PosX": x[0], "PosY": x[1]}))
+        self.send(c.encode("VehicleStatus", {"Speed": x[3] if speed is None else speed, "YawRate": x[5],
+                                             "SteerAngle": steer, "Mode": mode,
+                                             **(faults or dict.fromkeys(("FaultCmdTimeout", "FaultBadCounter",
+                                                                         "FaultBadChecksum", "FaultOutOfRange"), 0))}))
+        self.send(c.encode("InsHeadingVelocity", {"Heading": x[2], "VelX": x[3], "VelY": x[4],
+                                                  "AliveCounter": self.counter.take()}))
 
     def commands(self, timeout=0.3) -> list[dict]:
         out, deadline = [], time.monotonic() + timeout
@@ -140,7 +148,8 @@ def test_silence_bad_frames_and_an_ecu_takeover_are_faults(channel):
         node.close()
         return stats
     stats = asyncio.run(main())
-    assert stats["bad_frames"] == {"unknown_id": 1, "dlc": 1, "checksum": 2, "range": 1, "counter": 1}
+    assert stats["bad_frames"] == {"unknown_id": 1, "dlc": 1, "checksum": 2, "range": 1, "counter": 1,
+                                   "replayed": 0, "forged": 0, "unauthenticated": 0}
 
 
 def test_another_senders_commands_and_an_ecu_counter_takeover_are_faults(channel):
@@ -240,6 +249,7 @@ def test_mission_options_are_checked():
 
 def test_frame_error_kinds_are_the_counted_ones():
     assert set(FRAME_ERRORS) == {"unknown_id", "dlc", "checksum", "range", "counter"}
+    assert set(AUTH_ERRORS) == {"replayed", "forged", "unauthenticated"}
 
 
 def test_fuzz_thousands_of_malformed_frames_are_counted_and_the_state_stays_right(channel):
@@ -286,3 +296,83 @@ def test_fuzz_thousands_of_malformed_frames_are_counted_and_the_state_stays_righ
         assert bad[kind] == n, (kind, bad)
     assert bad["counter"] == 0 and stats["frames_ok"] == 3 * 31
     np.testing.assert_allclose(state.state, [1.0, 2.0, 0.3, 5.0, 0.1, 0.05], atol=1e-3)
+
+
+def test_an_authenticated_link_uses_authenticated_frames_only_and_counts_the_others_by_kind(channel):
+    """Spoofed positions (plain, forged PDU, replayed) are dropped and counted; a run of them is a stale
+    state; a replayed copy of the driver's own command is counted, a freshly authenticated foreign one
+    is the foreign-command fault."""
+    async def main():
+        node, d = Node(channel, KEY), driver(channel, state_timeout=0.15, auth=AuthConfig(KEY))
+        attacker = Node(channel)                               # no key
+        await d.connect()
+        node.publish()
+        await _settle()
+        assert d.fault() is None and d.latest_state() is not None
+        recorded = can.Message(arbitration_id=0x300, data=bytes(node.codec.encode(
+            "InsPosition", {"PosX": 1.0, "PosY": 2.0}).data), is_extended_id=False)
+        recorded_auth = node.auth.protect(recorded)            # recorded, never delivered: replayed below
+        node.publish()
+        await _settle()
+        spoof = attacker.codec.encode("InsPosition", {"PosX": 40.0, "PosY": -7.0})
+        for _ in range(3):
+            attacker.bus.send(spoof)                           # unauthenticated
+        attacker.bus.send(can.Message(arbitration_id=0x380, data=bytes(8), is_extended_id=False))     # forged
+        attacker.bus.send(recorded)
+        attacker.bus.send(recorded_auth)                       # older than what was accepted: replayed
+        node.publish()
+        await _settle()
+        np.testing.assert_allclose(d.latest_state().state[:2], [1.0, 2.0], atol=1e-3)
+        assert d.fault() is None
+        counts = dict(d.bad_frames)
+
+        await d.enable()
+        await d.send(np.array([0.5, 0.0]))
+        got = await asyncio.get_running_loop().run_in_executor(None, lambda: _raw(node, 0.1))
+        got = [m for m in got if m.arbitration_id in (0x100, 0x180)]       # the attacker's frames reached it too
+        assert got[0].arbitration_id == 0x100 and [m.arbitration_id for m in got] == [0x100, 0x180] * (len(got) // 2)
+        node.publish()
+        node.bus.send(got[0])
+        node.bus.send(got[1])                                  # the driver's own command, replayed
+        await _settle()
+        assert d.fault() is None and d.foreign_commands == 0
+
+        for _ in range(20):                                    # only spoofed INS for 0.2 s
+            attacker.bus.send(spoof)
+            attacker.bus.send(can.Message(arbitration_id=0x380, data=bytes(8), is_extended_id=False))
+            await _settle(0.01)
+        fault = d.fault()
+        stats = d.link_stats()
+        node.publish()
+        await _settle()
+        healthy = d.fault()
+        second = Node(channel, KEY)                            # a second commander with the key
+        second.send(second.codec.encode("VehicleCmd", {"AccelCmd": 2.0, "SteerAngleCmd": 0.3, "Enable": 1,
+                                                       "AliveCounter": 0}))
+        node.publish()
+        await _settle()
+        foreign = d.fault()
+        await d.close()
+        for n in (node, attacker, second):
+            n.close()
+        return counts, fault, stats, healthy, foreign
+
+    counts, fault, stats, healthy, foreign = asyncio.run(main())
+    # the forged PDU and the replay at once; the 3 spoofed positions wait for a PDU, and are pushed out
+    # (unauthenticated) by the frames that come after them
+    assert (counts["unauthenticated"], counts["forged"], counts["replayed"]) == (0, 1, 1), counts
+    assert stats["bad_frames"]["unauthenticated"] == 3 + 20 - PENDING and stats["bad_frames"]["forged"] == 21
+    assert "no authenticated INS frames" in fault and "rejected" in fault, fault
+    assert stats["authenticated"] and stats["auth_rejected"]["InsPosition"] >= 20
+    assert stats["auth_rejected"]["VehicleCmd"] == 1 and stats["bad_frames"]["replayed"] == 2
+    assert healthy is None
+    assert "another sender's VehicleCmd" in foreign
+
+
+def _raw(node: Node, seconds: float) -> list[can.Message]:
+    out, deadline = [], time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        msg = node.bus.recv(0.01)
+        if msg is not None:
+            out.append(msg)
+    return out

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from drivers.can_codec import CounterSource, VehicleCan, checksum
+from drivers.can_secoc import PENDING, AuthConfig, Receiver, Sender, auth_pdu
 from loopback import wait_for
 from sim.plants import make_plant
 from vflpcd.config.vehicles import BicycleConfig
@@ -16,18 +17,26 @@ from sim.sitl.can_ecu import CanEcu
 SC = load_scenario("carsim_avoidance")
 LIMITS = BicycleConfig.load(SC.params).limits
 CODEC = VehicleCan()
+KEY = bytes(range(7, 39))
 
 
 class Node:
     """Sends commands and collects what the ECU publishes."""
 
-    def __init__(self, channel):
+    def __init__(self, channel, key=None):
         self.bus = can.Bus(interface="virtual", channel=channel)
         self.counter = CounterSource()
+        self.auth = Sender(key) if key is not None else None
+        self.sent: list[tuple[can.Message, can.Message]] = []      # authenticated commands with their PDUs
 
     def command(self, accel=0.0, steer=0.0, enable=1, counter=None):
-        self.bus.send(CODEC.encode("VehicleCmd", {"AccelCmd": accel, "SteerAngleCmd": steer, "Enable": enable,
-                                                  "AliveCounter": self.counter.take() if counter is None else counter}))
+        frame = CODEC.encode("VehicleCmd", {"AccelCmd": accel, "SteerAngleCmd": steer, "Enable": enable,
+                                            "AliveCounter": self.counter.take() if counter is None else counter})
+        self.bus.send(frame)
+        if self.auth is not None:
+            pdu = self.auth.protect(frame)
+            self.bus.send(pdu)
+            self.sent.append((frame, pdu))
 
     def stream(self, seconds, **kw):
         end = time.monotonic() + seconds
@@ -48,10 +57,13 @@ class Node:
 def rig(request):
     channel = f"ecu-{request.node.name}"
     marker = request.node.get_closest_marker("max_counter_errors")
+    key = KEY if request.node.get_closest_marker("authenticated") else None
     ecu = CanEcu(lambda: can.Bus(interface="virtual", channel=channel), make_plant(SC, 0), LIMITS, CODEC,
-                 cmd_timeout_s=0.1, max_counter_errors=marker.args[0] if marker else 5)
-    tester = Node(channel)
+                 cmd_timeout_s=0.1, max_counter_errors=marker.args[0] if marker else 5,
+                 auth=AuthConfig(key) if key else None)
+    tester = Node(channel, key)
     ecu.start()
+    assert wait_for(lambda: ecu.stats()["reopens"] >= 1, 2.0)     # its bus is open: no frame is lost
     yield ecu, tester
     ecu.stop()
     tester.bus.shutdown()
@@ -219,3 +231,53 @@ def test_a_bus_error_brakes_and_the_bus_is_reopened(request):
     finally:
         ecu.stop()
         t.bus.shutdown()
+
+
+@pytest.mark.authenticated
+def test_authenticated_ecu_follows_only_fresh_authenticated_commands(rig):
+    """Recorded commands replayed in order and shuffled, forged PDUs, old freshness with a valid MAC
+    and plain frames, all steering 0.3 rad left, between the live stream steering straight: none is
+    followed, each is counted by kind, and nothing takes the vehicle over."""
+    ecu, t = rig
+    t.stream(0.3, accel=1.0, steer=0.3)                  # recorded: the left turn
+    recorded = list(t.sent)
+    t.stream(0.6, accel=0.5, steer=0.0)                  # the steering actuator is rate-limited
+    assert ecu.mode == "automatic" and ecu.plant.applied_control[1] == pytest.approx(0.0, abs=0.01)
+    rng = np.random.default_rng(3)
+    shuffled = [recorded[i] for i in rng.permutation(len(recorded))]
+    left = CODEC.encode("VehicleCmd", {"AccelCmd": 2.0, "SteerAngleCmd": 0.3, "Enable": 1, "AliveCounter": 0})
+    old_fv = t.auth.freshness(0x100) - 5000               # 5 s old, the MAC right
+    attacks = {"in_order": [f for pair in recorded for f in pair], "shuffled": [f for pair in shuffled for f in pair],
+               "forged": [left, can.Message(arbitration_id=0x180, data=bytes(rng.integers(0, 256, 8, dtype=np.uint8)),
+                                            is_extended_id=False)],
+               "old_freshness": [left, auth_pdu(0x100, old_fv, KEY, bytes(left.data))],
+               "plain": [left] * 8}
+    steer = []
+    for name, frames in attacks.items():
+        for k in range(0, len(frames), 2):
+            t.command(accel=0.5, steer=0.0)
+            for f in frames[k:k + 2]:
+                t.bus.send(f)
+            steer.append(ecu.plant.applied_control[1])
+            time.sleep(0.01)
+        t.stream(0.05, accel=0.5, steer=0.0)
+    t.stream(0.05, accel=0.5, steer=0.0)
+    stats = ecu.stats()
+    bad = stats["bad_frames"]
+    assert max(abs(np.array(steer))) < 0.01 and ecu.mode == "automatic", (max(steer), ecu.mode)
+    # the forged pair's and the plain frames wait for a PDU until newer ones push them out
+    assert bad["replayed"] >= len(recorded) and bad["forged"] >= 1 and bad["unauthenticated"] >= 9 - PENDING, bad
+    assert bad["counter"] == 0 and stats["counter_errors"] == 0 and stats["timeouts"] == 0, stats
+    assert stats["commands_ok"] == len(t.sent)           # every live command, nothing else
+
+
+@pytest.mark.authenticated
+def test_authenticated_ecu_sends_an_authentication_pdu_after_each_frame(rig):
+    ecu, t = rig
+    rejected = []
+    rx = Receiver(KEY, (0x200, 0x300, 0x301), rejected.append)
+    frames = t.collect(0.3)
+    ok = [m for m in (rx.feed(f) for f in frames) if m is not None]
+    names = [CODEC.decode(m).name for m in ok]
+    assert rejected == [] and names.count("InsPosition") >= 20 and names.count("VehicleStatus") >= 10
+    assert 0 <= len(frames) - 2 * len(ok) <= 1          # a frame whose PDU came after the window

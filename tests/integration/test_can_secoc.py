@@ -1,0 +1,286 @@
+"""Attacks on the authenticated CAN link, with real processes on loopback: python-can-remote's hub,
+the ECU mock (``vflpcd sitl can-ecu``) and the daemon (``vflpcd run``) on a short straight road
+with config/missions/vehicle_can_secoc.toml's platform, plus two bus clients of this test: a tap
+that records the traffic (and keeps the frames that authenticate: the car's true positions), and
+an attacker that, once the car drives, mixes into the live traffic:
+
+- the recorded commands and their authentication PDUs, in order, and shuffled frame by frame;
+- forged commands (steering 0.3 rad left, the right id, a random MAC);
+- commands with a valid MAC over an old freshness value (the attacker holds the key: the worst
+  case of a replay, built here), steering left;
+- plain (unauthenticated) commands steering left;
+- spoofed INS positions 3 m to the side: plain, with a forged PDU, and recorded ones replayed.
+
+Without authentication the left turns would take the car off the road (test_can_replay.py). Here
+no attack frame is obeyed or used: the ECU counts them by kind and follows the daemon's commands
+only (its alive counter sees no foreign frame), the driver counts the spoofed INS frames, and
+the mission completes on the road with no failsafe.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import threading
+import time
+from pathlib import Path
+
+import can
+import numpy as np
+
+from canhub import can_hub
+from drivers.can_codec import VehicleCan
+from drivers.can_secoc import AUTH_ID_OFFSET, Receiver, auth_pdu, load_key
+from processes import Proc
+from vflpcd.base.paths import config_dir
+from vflpcd.log.reader import read_flight_log
+
+MISSION = config_dir() / "missions" / "vehicle_can_secoc.toml"
+KEY = load_key(config_dir() / "can" / "demo_secoc.key")
+CMD, INS_POSITION = 0x100, 0x300
+ROUTE_END_X = 22.0           # m: the straight road
+RECORD_X = (2.0, 6.0)        # m: the stretch whose traffic is recorded
+ATTACK_RATE_HZ = 150.0       # mean; the daemon sends about 60 commands a second
+ON_ROAD_M = 0.3              # lateral error the car keeps below (a 3 m spoofed offset or a 0.3 rad turn would not)
+
+
+def short_road(folder: Path) -> Path:
+    path = folder / "straight.toml"
+    path.write_text(f"""name = "straight"
+description = "{ROUTE_END_X:g} m straight road at 25 km/h"
+platform = "ground"
+control_period = 0.05
+t_max = 20.0
+[vehicle]
+plant = "dynamic_bicycle"
+params = "nominal"
+[path]
+kind = "line"
+start = [0.0, 0.0]
+end = [{ROUTE_END_X:g}, 0.0]
+[start]
+position = [0.0, 0.0]
+yaw = 0.0
+speed = 6.944
+[speed]
+desired = 6.944
+a_lat_max = 3.0
+[goal]
+tolerance = 1.0
+[metrics]
+q1 = 1.0
+q2 = 1.0
+R = [[0.1, 0.0], [0.0, 1.0]]
+""")
+    return path
+
+
+def mission_copy(folder: Path, url: str) -> Path:
+    """The shipped authenticated mission on the hub at ``url`` and the short road, telemetry off."""
+    text = MISSION.read_text()
+    for old, new in (('channel = "ws://127.0.0.1:54702/"', f'channel = "{url}"'),
+                     ('auth_key = "../can/demo_secoc.key"', f'auth_key = "{config_dir() / "can" / "demo_secoc.key"}"'),
+                     ('scenario = "carsim_avoidance"', f'scenario = "{short_road(folder)}"'),
+                     ("[telemetry]\nenabled = true", "[telemetry]\nenabled = false"),
+                     ('dir = "logs"', f'dir = "{folder / "logs"}"')):
+        assert text.count(old) == 1, f"{MISSION} changed: {old!r} not found once"
+        text = text.replace(old, new)
+    path = folder / "vehicle_can_secoc.toml"
+    path.write_text(text)
+    return path
+
+
+class Tap:
+    """A bus client that records every frame (monotonic time, id, data) and the car's authenticated
+    positions; ``pairs(frame_id)``: the recorded data frames with the authentication PDU after them."""
+
+    def __init__(self, url: str) -> None:
+        self.bus = can.Bus(interface="remote", channel=url)
+        self.frames: list[tuple[float, int, bytes]] = []
+        self.positions: list[tuple[float, float]] = []
+        self.rejected: list[str] = []
+        self.rx = Receiver(KEY, (INS_POSITION,), lambda e: self.rejected.append(e.kind))
+        self.error: BaseException | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="can-tap", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                msg = self.bus.recv(0.05)
+                if msg is None:
+                    continue
+                self.frames.append((time.monotonic(), msg.arbitration_id, bytes(msg.data)))
+                ok = self.rx.feed(msg)
+                if ok is not None and ok.arbitration_id == INS_POSITION:
+                    self.positions.append(tuple(np.array(struct.unpack("<ii", bytes(ok.data))) * 1e-3))
+        except BaseException as exc:           # the test reports it
+            self.error = exc
+
+    @property
+    def x(self) -> float:
+        return self.positions[-1][0] if self.positions else float("-inf")
+
+    def wait_x(self, x: float, timeout: float) -> float:
+        deadline = time.monotonic() + timeout
+        while self.x < x:
+            assert self.error is None, f"the bus tap failed: {self.error!r}"
+            assert time.monotonic() < deadline, f"the car did not pass x = {x} m within {timeout} s (x = {self.x})"
+            time.sleep(0.01)
+        return time.monotonic()
+
+    def pairs(self, frame_id: int, t0: float, t1: float) -> list[tuple[bytes, bytes]]:
+        frames = [(i, d) for t, i, d in list(self.frames) if t0 <= t <= t1]
+        return [(d, frames[k + 1][1]) for k, (i, d) in enumerate(frames[:-1])
+                if i == frame_id and frames[k + 1][0] == frame_id + AUTH_ID_OFFSET]
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self.bus.shutdown()
+
+
+class Attacker:
+    """Sends attack frames in rounds, at exponential gaps of mean 1 / rate_hz; counts what it sent by attack."""
+
+    def __init__(self, url: str, cmds: list[tuple[bytes, bytes]], ins: list[tuple[bytes, bytes]], rate_hz: float,
+                 seed: int = 5) -> None:
+        self.bus = can.Bus(interface="remote", channel=url)
+        self.rng = np.random.default_rng(seed)
+        self.cmds, self.ins, self.rate_hz = cmds, ins, rate_hz
+        self.codec = VehicleCan()
+        self.log: list[tuple[float, str]] = []          # (monotonic time, attack) of each one sent
+        self.error: BaseException | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="can-attacker", daemon=True)
+        self.started = time.monotonic()
+        self._thread.start()
+
+    def _left(self, counter: int) -> bytes:
+        return bytes(self.codec.encode("VehicleCmd", {"AccelCmd": 2.0, "SteerAngleCmd": 0.3, "Enable": 1,
+                                                      "AliveCounter": counter % 16}).data)
+
+    def _rounds(self):
+        shuffled = [f for pair in self.cmds for f in ((CMD, pair[0]), (CMD + AUTH_ID_OFFSET, pair[1]))]
+        old_fv = time.time_ns() // 1_000_000 - 3000                    # 3 s old
+        k = 0
+        while True:
+            k += 1
+            d, a = self.cmds[k % len(self.cmds)]
+            yield "replay_in_order", [(CMD, d), (CMD + AUTH_ID_OFFSET, a)]
+            yield "replay_shuffled", [shuffled[i] for i in self.rng.integers(0, len(shuffled), 2)]
+            left = self._left(k)
+            yield "forged", [(CMD, left), (CMD + AUTH_ID_OFFSET, bytes(self.rng.integers(0, 256, 8, dtype=np.uint8)))]
+            yield "old_freshness", [(CMD, left), (CMD + AUTH_ID_OFFSET, bytes(auth_pdu(CMD, old_fv + k, KEY, left).data))]
+            yield "plain", [(CMD, left)]
+            d, a = self.ins[k % len(self.ins)]
+            x, y = struct.unpack("<ii", d)
+            spoof = struct.pack("<ii", x, y + 3000)                    # 3 m to the left
+            yield "ins_plain", [(INS_POSITION, spoof)]
+            yield "ins_forged", [(INS_POSITION, spoof),
+                                 (INS_POSITION + AUTH_ID_OFFSET, bytes(self.rng.integers(0, 256, 8, dtype=np.uint8)))]
+            yield "ins_replayed", [(INS_POSITION, d), (INS_POSITION + AUTH_ID_OFFSET, a)]
+
+    def _run(self) -> None:
+        next_t = self.started
+        try:
+            for name, frames in self._rounds():
+                if self._stop.is_set():
+                    return
+                for frame_id, data in frames:
+                    self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+                self.log.append((time.monotonic(), name))
+                next_t += self.rng.exponential(1.0 / self.rate_hz)
+                time.sleep(max(0.0, next_t - time.monotonic()))
+        except BaseException as exc:
+            self.error = exc
+
+    @property
+    def running(self) -> bool:
+        return self._thread.is_alive()
+
+    def sent(self, until: float = float("inf")) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for t, name in self.log:
+            if t <= until:
+                out[name] = out.get(name, 0) + 1
+        return out
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self.bus.shutdown()
+
+
+def ecu_stats(proc: Proc) -> dict:
+    return next(json.loads(line)["ecu_stats"] for line in proc.out if line.startswith('{"ecu_stats"'))
+
+
+def test_replayed_forged_and_spoofed_frames_are_rejected_and_counted_and_the_car_keeps_its_road(tmp_path):
+    with can_hub() as (url, _):
+        mission = mission_copy(tmp_path, url)
+        ecu = Proc("sitl", "can-ecu", str(mission))
+        daemon = tap = attacker = None
+        try:
+            ecu.wait_line("event=ecu_started", 20)
+            tap = Tap(url)
+            daemon = Proc("run", str(mission))
+            daemon.wait_line("event=ready", 60)
+            t_from = tap.wait_x(RECORD_X[0], 20)
+            t_to = tap.wait_x(RECORD_X[1], 10)
+            cmds, ins = tap.pairs(CMD, t_from, t_to), tap.pairs(INS_POSITION, t_from, t_to)
+            assert len(cmds) > 20 and len(ins) > 40, (len(cmds), len(ins))
+            attacker = Attacker(url, cmds, ins, ATTACK_RATE_HZ)
+            rc = daemon.wait(30)
+            t_counted = daemon.lines_with("event=can_stats")[0][0]     # the driver's counters end about here
+            assert attacker.running and attacker.error is None, attacker.error        # it attacked to the end
+            attacker.stop()
+            ecu.stop()
+            daemon_text = daemon.text()
+        finally:
+            if attacker is not None and attacker.running:
+                attacker.stop()
+            if tap is not None:
+                tap.close()
+            for proc in (daemon, ecu):
+                if proc is not None and proc.p.poll() is None:
+                    proc.kill()
+    assert tap.error is None, f"the bus tap failed: {tap.error!r}"
+    assert daemon.p.returncode is not None and ecu.p.returncode is not None
+
+    # The mission completes, no failsafe.
+    assert rc == 0 and "mission_complete (exit code 0)" in "\n".join(daemon.out), daemon_text[-3000:]
+    (log_file,) = (tmp_path / "logs").glob("suv1-*.mcap")
+    log = read_flight_log(log_file)
+    assert not [e for e in log.events if e.kind == "failsafe"]
+    (link,) = [e.detail for e in log.events if e.kind == "link_stats"]
+
+    # The ECU obeyed the daemon's commands only: none of the attacks reached its alive counter.
+    sent = attacker.sent()
+    assert all(sent.get(k, 0) > 20 for k in ("replay_in_order", "forged", "old_freshness", "plain", "ins_forged")), sent
+    stats = ecu_stats(ecu)
+    bad = stats["bad_frames"]
+    cmd_attacks = sent["replay_in_order"] + sent["old_freshness"]          # pairs whose MAC verifies: stale
+    assert bad["replayed"] >= cmd_attacks and bad["forged"] >= sent["forged"], (bad, sent)
+    assert bad["unauthenticated"] >= sent["plain"], (bad, sent)
+    assert bad["counter"] == 0 and stats["counter_errors"] == 0 and stats["timeouts"] == 0, stats
+    # (+1: the hand-back frame goes after the driver's counters were logged)
+    assert link["frames_sent"] - 2 <= stats["commands_ok"] <= link["frames_sent"] + 1, (stats, link)
+
+    # The driver rejected every spoofed position and counted it; it saw no foreign command fault.
+    sent = attacker.sent(t_counted)
+    cmd_attacks = sent["replay_in_order"] + sent["old_freshness"]
+    ins_attacks = sent["ins_plain"] + 2 * sent["ins_forged"] + sent["ins_replayed"]     # frames on 0x300/0x380
+    assert link["authenticated"] and link["foreign_commands"] == 0, link
+    assert link["auth_rejected"]["InsPosition"] >= 0.9 * (ins_attacks - sent["ins_forged"]), (link, sent)
+    assert link["bad_frames"]["replayed"] >= 0.9 * (sent["ins_replayed"] + cmd_attacks), (link, sent)
+
+    # The car kept its road: its true (authenticated) positions, to the end of the road.
+    ys = np.array([y for _, y in tap.positions])
+    xs = np.array([x for x, _ in tap.positions])
+    assert xs.max() > ROUTE_END_X - 2.0 and np.abs(ys).max() < ON_ROAD_M, (xs.max(), np.abs(ys).max())
+    assert tap.rejected.count("replayed") >= sent["ins_replayed"]
+    print(f"attacks={attacker.sent()} ecu_bad={bad} ecu_commands_ok={stats['commands_ok']} daemon_sent={link['frames_sent']} "
+          f"driver_bad={link['bad_frames']} driver_auth_rejected={link['auth_rejected']} "
+          f"max_lateral_m={np.abs(ys).max():.3f}")
