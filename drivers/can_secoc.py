@@ -52,12 +52,16 @@ from pathlib import Path
 
 import can
 
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.inputfile import read_bytes
+
 AUTH_ERRORS = ("replayed", "forged", "unauthenticated")
 FRESHNESS_BITS = 32
 MAC_BYTES = 4
 AUTH_ID_OFFSET = 0x80          # the cryptographic PDU's id: the authentic PDU's + 0x80
 AUTH_SUFFIX = "Auth"           # and its name: the authentic PDU's + "Auth"
 MIN_KEY_BYTES = 16             # 128 bits, SecOC's AES-128 key length
+KEY_MAX_BYTES = 64 * 1024      # a key file is a few dozen bytes
 PENDING = 4                    # data frames of one id waiting for their cryptographic PDU
 DEFAULT_CLOCK_SKEW_S = 2.0
 
@@ -203,9 +207,9 @@ def load_key(path: Path) -> bytes:
     """The key in ``path``: a text file of hex digits (whitespace and lines starting with # ignored),
     else the file's raw bytes; ValueError when it cannot be read or holds fewer than MIN_KEY_BYTES."""
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ValueError(f"cannot read the key file {str(path)!r}: {exc.strerror or exc}") from None
+        raw = read_bytes(path, KEY_MAX_BYTES)
+    except ConfigError as exc:
+        raise ValueError(f"key file {str(path)!r}: {exc.message}") from None
     key = raw
     try:
         lines = [line for line in raw.decode("ascii").splitlines() if not line.lstrip().startswith("#")]

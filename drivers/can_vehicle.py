@@ -426,6 +426,9 @@ def can_vehicle_from_scenario(scenario, options: dict, file=None, bus_log_stem: 
     missing = set(LINK_MESSAGES) - {m.name for m in codec.db.messages}
     if missing:
         raise t.error("dbc", f"the CAN database lacks {', '.join(sorted(missing))}")
+    uncycled = [n for n in LINK_MESSAGES if not (codec.message(n).cycle_time or 0) > 0]
+    if uncycled:
+        raise t.error("dbc", f"the CAN database gives no cycle time (GenMsgCycleTime) for {', '.join(uncycled)}")
     auth = auth_config(t, file)
     if auth is not None:
         try:

@@ -17,10 +17,10 @@ class ConfigError(ValueError):
     """
 
     def __init__(self, file: str | Path | None, field: str, message: str) -> None:
-        self.file = str(file) if file is not None else "<input>"
-        self.field = field
-        self.message = message
-        super().__init__(_one_line(f"{self.file}: {field}: {message}"))
+        self.file = _one_line(str(file)) if file is not None else "<input>"
+        self.field = _one_line(field)
+        self.message = _one_line(message)
+        super().__init__(f"{self.file}: {self.field}: {self.message}")
 
 
 _LINE_BREAKS = {ord(c): repr(c)[1:-1] for c in "\n\r\v\f\x1c\x1d\x1e\x85\u2028\u2029"}   # str.splitlines()'s

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Protocol
 
+from vflpcd.base.errors import ConfigError
+from vflpcd.base.inputfile import read_bytes
 from vflpcd.base.tomlread import Table, load_table
 
 SECURE_PROTOCOLS = ("tls", "quic")
@@ -70,11 +72,9 @@ def _pem_file(table: Table, key: str, base: Path) -> Path:
         raise table.error(key, str(exc)) from None
     path = path if path.is_absolute() else base / path
     try:
-        head = path.read_bytes()[:64 * 1024] if path.is_file() else None
-    except OSError as exc:
-        raise table.error(key, f"cannot read {str(path)!r} ({exc.strerror or exc})") from None
-    if head is None:
-        raise table.error(key, f"no such file {str(path)!r}")
+        head = read_bytes(path)
+    except ConfigError as exc:
+        raise table.error(key, f"{str(path)!r}: {exc.message}") from None
     label = _PEM[key]
     if not any(line.startswith(b"-----BEGIN ") and line.rstrip().endswith(f"{label}-----".encode())
                for line in head.splitlines()):

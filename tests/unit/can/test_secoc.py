@@ -179,7 +179,7 @@ def test_key_files(tmp_path):
     short.write_text("00" * (MIN_KEY_BYTES - 1))
     with pytest.raises(ValueError, match="at least 16"):
         load_key(short)
-    with pytest.raises(ValueError, match="cannot read"):
+    with pytest.raises(ValueError, match="file not found"):
         load_key(tmp_path / "missing.key")
     assert len(load_key(config_dir() / "can" / "demo_secoc.key")) == 32
 
@@ -194,7 +194,7 @@ def test_mission_key_is_relative_to_the_mission_and_checked(tmp_path):
     plain = can_vehicle_from_scenario(sc, {"interface": "virtual", "channel": "x"}, mission)
     assert plain.auth is None and "not authenticated" in plain.link_warnings()[0]
     (tmp_path / "short.key").write_text("00" * 8)
-    for options, text in [({"auth_key": "nokey.key"}, "cannot read"), ({"auth_key": "short.key"}, "8 bytes"),
+    for options, text in [({"auth_key": "nokey.key"}, "file not found"), ({"auth_key": "short.key"}, "8 bytes"),
                           ({"auth_key": 3}, "expected a string"),
                           ({"auth_key": "keys/can.key", "auth_clock_skew": 0.0}, "auth_clock_skew")]:
         with pytest.raises(ConfigError) as err:
