@@ -70,6 +70,11 @@ class Gcs:
         """MAV_CMD_DO_SET_MODE with PX4's custom mode (as pymavlink's ``set_mode_px4`` sends it); its ACK."""
         return self.command(mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
 
+    def mode(self, name):
+        """pymavlink's ``set_mode(name)`` (what MAVProxy's ``mode NAME`` sends to a PX4); its ACK."""
+        self.c.set_mode(name)
+        return self.recv("COMMAND_ACK", cond=lambda m: m.command == mav.MAV_CMD_DO_SET_MODE)
+
     def accel(self, n, e, d):
         self.c.mav.set_position_target_local_ned_send(0, 1, 1, mav.MAV_FRAME_LOCAL_NED, 3135, 0, 0, 0, 0, 0, 0,
                                                       n, e, d, 0, 0)

@@ -17,8 +17,9 @@ component 1, and answers on the same socket.
   and a setpoint is fresh, AUTO.RTL only in the air, AUTO.LOITER, AUTO.LAND, POSCTL and ALTCTL
   (both hold where they were entered); AUTO.MISSION, MANUAL, STABILIZED, ACRO and the rest are
   UNSUPPORTED. REQUEST_MESSAGE (512), GET_HOME_POSITION (410), REQUEST_AUTOPILOT_CAPABILITIES
-  (520), SET_MESSAGE_INTERVAL (511); other commands UNSUPPORTED. Every command or mode change it
-  refuses is followed by a STATUSTEXT (warning) saying why.
+  (520), SET_MESSAGE_INTERVAL (511), their unused parameters NaN or not; other commands
+  UNSUPPORTED. Every command or mode change it refuses is followed by a STATUSTEXT (warning)
+  saying why.
 - Return (AUTO.RTL): climb where it is to RTL_RETURN_ALT above home (or stay at its altitude if
   higher) until within NAV_MC_ALT_RAD of it, fly level to home (the position loop's at most 2 m/s
   per axis) until within NAV_ACC_RAD, then descend at MPC_LAND_SPEED (EXTENDED_SYS_STATE: landing)
@@ -27,6 +28,8 @@ component 1, and answers on the same socket.
   interval a station set), SYS_STATUS (sensor and pre-arm bits; errors_comm = malformed frames)
   and EXTENDED_SYS_STATE at 2 Hz, GLOBAL_POSITION_INT at 5 Hz, HOME_POSITION on request (and
   once a second until asked) and on arming, AUTOPILOT_VERSION on request, STATUSTEXT on events.
+- Missions: none. MISSION_REQUEST_LIST is answered by MISSION_COUNT 0, an upload (MISSION_COUNT)
+  by MISSION_ACK MAV_MISSION_UNSUPPORTED and a STATUSTEXT.
 - Parameters (PARAM_REQUEST_LIST / _READ / PARAM_SET; int32 values carried bytewise in the float
   field as PX4 does): ``PARAMS`` below. A value out of range is refused: the current value is
   echoed.
@@ -57,7 +60,8 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402  (MAVLink 2 must be chosen before the import)
 
 from drivers.ned_enu import attitude_enu_to_ned, enu_to_ned, flu_to_frd, ned_to_enu, quat_to_rot, yaw_ned_to_enu  # noqa: E402
-from sim.sitl.quad_modes import STATUSTEXT_LEN, Return, custom_mode, requested_mode, split_custom_mode  # noqa: E402
+from sim.sitl.quad_modes import (NO_MISSIONS, STATUSTEXT_LEN, Return, custom_mode, requested_mode,  # noqa: E402
+                                 split_custom_mode)
 
 log = logging.getLogger("sim.sitl.quad")
 mav = mavutil.mavlink
@@ -242,6 +246,12 @@ class QuadSitl:
             self._command(mav.MAV_CMD_DO_SET_MODE, [float(msg.base_mode), float(main), float(sub)] + [0.0] * 4, msg)
         elif kind == "SET_POSITION_TARGET_LOCAL_NED":
             self._on_setpoint(msg)
+        elif kind == "MISSION_REQUEST_LIST":                # no mission: an empty list, as PX4 without one
+            self.conn.mav.mission_count_send(msg.get_srcSystem(), msg.get_srcComponent(), 0, msg.mission_type)
+        elif kind == "MISSION_COUNT":                       # an upload: refused
+            self.conn.mav.mission_ack_send(msg.get_srcSystem(), msg.get_srcComponent(), mav.MAV_MISSION_UNSUPPORTED,
+                                           msg.mission_type)
+            self._statustext(mav.MAV_SEVERITY_WARNING, f"upload: {NO_MISSIONS}")
         elif kind == "PARAM_REQUEST_LIST":
             for i, name in enumerate(PARAMS):
                 self._param_value(name, i)
@@ -294,10 +304,14 @@ class QuadSitl:
             return self._mode_result(mode)
         if cmd == mav.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             return self._mode_result("AUTO.RTL")
-        if cmd in (mav.MAV_CMD_REQUEST_MESSAGE, mav.MAV_CMD_GET_HOME_POSITION,
-                   mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, mav.MAV_CMD_SET_MESSAGE_INTERVAL):
-            return accepted if all(math.isfinite(v) for v in p[:2]) else (denied, "request denied: a parameter "
-                                                                                  "is not a number")
+        if cmd == mav.MAV_CMD_GET_HOME_POSITION:
+            return accepted
+        if cmd in (mav.MAV_CMD_REQUEST_MESSAGE, mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
+                   mav.MAV_CMD_SET_MESSAGE_INTERVAL):          # the unused parameters may be NaN (MAVSDK's are)
+            used = 2 if cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL else 1
+            if not all(math.isfinite(v) for v in p[:used]):
+                return denied, "request denied: a parameter is not a number"
+            return accepted
         return mav.MAV_RESULT_UNSUPPORTED, f"command {cmd} not supported by this SITL"
 
     def _mode_result(self, mode: str) -> tuple[int, str]:
@@ -416,7 +430,7 @@ class QuadSitl:
                 self._send_message(mav.MAVLINK_MSG_ID_HOME_POSITION)
 
     def _flying(self, mode: str, target) -> None:
-        """Enter ``mode`` flying to ``target`` (ENU): no landing, no return, no pending failsafe land."""
+        """Enter ``mode`` flying to ``target`` (ENU): a landing or a return under way ends."""
         self._target = np.array(target, dtype=float)
         self._return = None
         if self.in_air:
@@ -490,7 +504,7 @@ class QuadSitl:
                 and abs(self.plant.velocity_world()[2]) < 0.1:
             self.landed_state = IN_AIR
             self._hold()
-        if self._mode == "AUTO.RTL" and self.landed_state in (IN_AIR, TAKEOFF):
+        if self._mode == "AUTO.RTL" and self.landed_state == IN_AIR:          # climbing or flying back
             self._follow_return()
         if self._touchdown_at is not None and now - self._touchdown_at >= 1.0 and self.armed:
             self._set_armed(False)

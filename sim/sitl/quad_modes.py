@@ -10,8 +10,8 @@ OFFBOARD 6, STABILIZED 7.
 Flown: OFFBOARD, AUTO.LOITER, AUTO.TAKEOFF (entered by MAV_CMD_NAV_TAKEOFF), AUTO.LAND, AUTO.RTL,
 POSCTL and ALTCTL. With no pilot's sticks, POSCTL and ALTCTL hold the position and altitude at
 which they were entered (PX4 with centred sticks; the plant knows no wind, so ALTCTL holds the
-horizontal position too). Refused as unsupported, each with its reason: AUTO.MISSION (no mission
-protocol), MANUAL, STABILIZED and ACRO (they fly by the sticks), AUTO.TAKEOFF as a mode change, the
+horizontal position too). Refused as unsupported, each with its reason: AUTO.MISSION (it keeps no
+missions), MANUAL, STABILIZED and ACRO (they fly by the sticks), AUTO.TAKEOFF as a mode change, the
 other sub modes, unknown main modes, and a base mode without the custom-mode flag.
 """
 
@@ -31,7 +31,8 @@ FLOWN = {"AUTO.LOITER": (4, 3), "AUTO.TAKEOFF": (4, 2), "AUTO.LAND": (4, 6), "AU
          "POSCTL": (3, 0), "ALTCTL": (2, 0), "OFFBOARD": (6, 0)}
 # the modes a ground station may set
 SETTABLE = ("AUTO.LOITER", "AUTO.LAND", "AUTO.RTL", "POSCTL", "ALTCTL", "OFFBOARD")
-REFUSED = {"AUTO.MISSION": "AUTO.MISSION: missions not supported by this SITL",
+NO_MISSIONS = "missions not supported by this SITL"
+REFUSED = {"AUTO.MISSION": f"AUTO.MISSION: {NO_MISSIONS}",
            "AUTO.TAKEOFF": "AUTO.TAKEOFF by mode unsupported: use NAV_TAKEOFF",
            **{name: f"{name}: stick mode, unsupported by this SITL" for name in ("MANUAL", "STABILIZED", "ACRO")}}
 NOT_CUSTOM = "only PX4 custom modes are supported by this SITL"

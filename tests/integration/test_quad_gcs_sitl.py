@@ -1,12 +1,15 @@
-"""A ground station against the quadrotor SITL process (``vflpcd sitl quad``) on loopback, as
-QGroundControl or MAVProxy fly it with pymavlink: take off, fly away, hold in POSCTL, a refused
-mission, then return to launch: back to home, landed and disarmed."""
+"""A ground station against the quadrotor SITL process (``vflpcd sitl quad``) on loopback, with
+pymavlink's own calls (``set_mode``, ``set_mode_rtl``, ``mode_string_v10``: what MAVProxy's
+``mode POSCTL`` and ``rtl`` send and show): take off, fly away, hold in POSCTL, a refused mission,
+then return to launch: back to home, landed and disarmed."""
 
 import math
 import time
 
 import numpy as np
 import pytest
+
+from pymavlink import mavutil
 
 from gcs import LAND, POSCTL, RTL, Gcs, mav
 from loopback import free_udp_port
@@ -40,15 +43,16 @@ def test_takeoff_fly_away_hold_refused_mission_and_return_to_launch():
 
         # fly 2 m/s east in OFFBOARD, then stop
         gcs.velocity(0.0, 0.0, 0.0, math.pi / 2)
-        assert gcs.set_mode(6).result == mav.MAV_RESULT_ACCEPTED
+        assert gcs.mode("OFFBOARD").result == mav.MAV_RESULT_ACCEPTED
         for vel, steps in ((2.0, 40), (0.0, 25)):
             for _ in range(steps):
                 gcs.velocity(0.0, vel, 0.0, math.pi / 2)
                 time.sleep(0.02)
 
         # POSCTL: answered, shown, and the vehicle holds where it was
-        assert gcs.set_mode(3).result == mav.MAV_RESULT_ACCEPTED
+        assert gcs.mode("POSCTL").result == mav.MAV_RESULT_ACCEPTED
         gcs.shown(POSCTL)
+        assert mavutil.mode_string_v10(gcs.heartbeats[-1]) == "POSCTL"
         at_switch = gcs.latest("LOCAL_POSITION_NED")
         away = np.array([at_switch.x, at_switch.y, at_switch.z])
         held = positions(gcs, 1.5)
@@ -57,14 +61,16 @@ def test_takeoff_fly_away_hold_refused_mission_and_return_to_launch():
         assert abs(gcs.latest("LOCAL_POSITION_NED").vy) < 0.1
 
         # a mission: refused, with a STATUSTEXT saying why
-        ack = gcs.set_mode(4, 4)
+        ack = gcs.mode("MISSION")
         assert ack.result in (mav.MAV_RESULT_UNSUPPORTED, mav.MAV_RESULT_DENIED)
         assert "missions not supported" in gcs.recv("STATUSTEXT", 2, lambda m: "MISSION" in m.text).text
 
         # return to launch: climb to RTL_RETURN_ALT, fly home, land, disarm
         t_rtl = time.monotonic()
-        assert gcs.command(mav.MAV_CMD_NAV_RETURN_TO_LAUNCH).result == mav.MAV_RESULT_ACCEPTED
+        gcs.c.set_mode_rtl()                                               # MAV_CMD_NAV_RETURN_TO_LAUNCH
+        assert gcs.recv("COMMAND_ACK", cond=lambda m: m.command == 20).result == mav.MAV_RESULT_ACCEPTED
         gcs.shown(RTL)
+        assert mavutil.mode_string_v10(gcs.heartbeats[-1]) == "RTL"
         track, landed_states = [], set()
         while True:
             m = gcs.recv("LOCAL_POSITION_NED", 1)

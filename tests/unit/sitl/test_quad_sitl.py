@@ -57,13 +57,19 @@ def test_refusals_are_acked_and_each_says_why_in_a_statustext(rig):
     refused(gcs.set_mode(7), unsupported, "STABILIZED: stick mode, unsupported by this SITL")
     refused(gcs.command(176, 0, 4, 5), unsupported, "only PX4 custom modes are supported by this SITL")
     refused(gcs.command(31000), unsupported, "command 31000 not supported by this SITL")
+    refused(gcs.command(511, 32, math.nan), denied, "request denied: a parameter is not a number")
     gcs.c.mav.set_mode_send(1, 1, (4 << 24) | (4 << 16))                                 # SET_MODE: AUTO.MISSION
     ack = gcs.recv("COMMAND_ACK")
     assert (ack.command, ack.target_system) == (mav.MAV_CMD_DO_SET_MODE, 245)
     refused(ack, unsupported, "AUTO.MISSION: missions not supported by this SITL")
+    gcs.c.mav.mission_request_list_send(1, 1)                                           # no mission
+    assert gcs.recv("MISSION_COUNT").count == 0
+    gcs.c.mav.mission_count_send(1, 1, 3)                                               # an upload
+    assert gcs.recv("MISSION_ACK").type == mav.MAV_MISSION_UNSUPPORTED
+    assert gcs.recv("STATUSTEXT").text == "upload: missions not supported by this SITL"
     gcs.takeoff()
     refused(gcs.command(400, 0), denied, "disarm denied: in the air")
-    assert sitl.armed and sitl.mode == "AUTO.LOITER" and sitl.stats()["rejected_commands"] == 10
+    assert sitl.armed and sitl.mode == "AUTO.LOITER" and sitl.stats()["rejected_commands"] == 11
 
 
 def test_set_mode_message_starts_the_return_and_altctl_holds_where_it_was_set(rig):
@@ -164,7 +170,7 @@ def test_home_position_and_autopilot_version_on_request(rig):
     assert gcs.command(512, 242).result == 0
     home = gcs.recv("HOME_POSITION")
     assert home.latitude == 473977420 and (home.x, home.y, home.z) == (0, 0, 0)
-    assert gcs.command(512, 148).result == 0
+    assert gcs.command(512, 148, *[math.nan] * 6).result == 0                # the unused parameters NaN, as MAVSDK
     v = gcs.recv("AUTOPILOT_VERSION")
     assert v.capabilities & mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2
     assert gcs.command(511, 32, 20000).result == 0                       # LOCAL_POSITION_NED at 50 Hz
@@ -233,9 +239,9 @@ def test_a_restarted_ground_station_is_served(rig):
 
 
 def test_return_path_in_simulated_time_and_a_station_taking_over_in_the_descent():
-    """The autopilot stepped by hand (no thread, no station): the return's phases, where it lands,
-    and POSCTL in the descent stopping it."""
-    sitl = QuadSitl("127.0.0.1", free_port(), params={**FAST, "RTL_RETURN_ALT": 3.0})
+    """The autopilot stepped by hand (no thread, no station): the take-off's climb rate, the
+    return's phases, where it lands, and POSCTL in the descent stopping it."""
+    sitl = QuadSitl("127.0.0.1", free_port(), params={**FAST, "MIS_TAKEOFF_ALT": 4.0, "RTL_RETURN_ALT": 3.0})
     dt = sitl.dt
 
     def command(cmd, *p):
@@ -254,7 +260,9 @@ def test_return_path_in_simulated_time_and_a_station_taking_over_in_the_descent(
 
     try:
         assert command(400, 1) == 0 and command(22, *[math.nan] * 7) == 0
-        assert fly(5, lambda: sitl.mode == "AUTO.LOITER")
+        climb = []
+        assert fly(5, lambda: climb.append(sitl.plant.velocity_world()[2]) or sitl.mode == "AUTO.LOITER")
+        assert max(climb) == pytest.approx(FAST["MPC_TKO_SPEED"], abs=0.1)      # past the hold's 2 m/s
         sitl.plant.reset(np.array([4.0, -3.0, 1.0, 0.0, 0.0, 0.0, 0.0]))     # 5 m from home, 1 m up
         assert command(20) == 0 and sitl.mode == "AUTO.RTL" and sitl._return.phase == "climb"
         assert fly(5, lambda: sitl._return.phase == "back")
