@@ -7,17 +7,29 @@ component 1, and answers on the same socket.
 
 - HEARTBEAT (1 Hz and on every change): MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_PX4, base_mode
   CUSTOM_MODE_ENABLED | SAFETY_ARMED when armed, custom_mode = (sub << 24) | (main << 16) with
-  PX4's modes (AUTO.LOITER at boot, AUTO.TAKEOFF, AUTO.LAND, OFFBOARD = main 6).
+  PX4's modes (``sim.sitl.quad_modes``: AUTO.LOITER at boot, AUTO.TAKEOFF, AUTO.LAND, AUTO.RTL,
+  POSCTL, ALTCTL, OFFBOARD = main 6).
 - Commands (COMMAND_LONG / COMMAND_INT, each answered by COMMAND_ACK to its sender): arm/disarm
-  (400; disarm refused in the air unless forced with 21196), take-off (22: climb to
-  MIS_TAKEOFF_ALT at MPC_TKO_SPEED, then AUTO.LOITER), land (21: descend at MPC_LAND_SPEED, then
-  disarm 1 s after touchdown), DO_SET_MODE (176: OFFBOARD only when armed and a setpoint is
-  fresh; AUTO.LOITER, AUTO.LAND), REQUEST_MESSAGE (512), GET_HOME_POSITION (410),
-  REQUEST_AUTOPILOT_CAPABILITIES (520), SET_MESSAGE_INTERVAL (511); others UNSUPPORTED.
+  (400; disarm refused in the air unless forced with 21196; arming sets home where it stands),
+  take-off (22: climb to MIS_TAKEOFF_ALT at MPC_TKO_SPEED, then AUTO.LOITER), land (21: descend at
+  MPC_LAND_SPEED, then disarm 1 s after touchdown), return (20, or AUTO.RTL by mode), DO_SET_MODE
+  (176; SET_MODE is taken as this command and ACKed as it, as PX4 does): OFFBOARD only when armed
+  and a setpoint is fresh, AUTO.RTL only in the air, AUTO.LOITER, AUTO.LAND, POSCTL and ALTCTL
+  (both hold where they were entered); AUTO.MISSION, MANUAL, STABILIZED, ACRO and the rest are
+  UNSUPPORTED. REQUEST_MESSAGE (512), GET_HOME_POSITION (410), REQUEST_AUTOPILOT_CAPABILITIES
+  (520), SET_MESSAGE_INTERVAL (511), their unused parameters NaN or not; other commands
+  UNSUPPORTED. Every command or mode change it refuses is followed by a STATUSTEXT (warning)
+  saying why.
+- Return (AUTO.RTL): climb where it is to RTL_RETURN_ALT above home (or stay at its altitude if
+  higher) until within NAV_MC_ALT_RAD of it, fly level to home (the position loop's at most 2 m/s
+  per axis) until within NAV_ACC_RAD, then descend at MPC_LAND_SPEED (EXTENDED_SYS_STATE: landing)
+  onto home and disarm 1 s after touchdown, as PX4 does; each phase is announced by STATUSTEXT.
 - Telemetry: LOCAL_POSITION_NED, ATTITUDE, ATTITUDE_QUATERNION at ``telemetry_rate_hz`` (or the
   interval a station set), SYS_STATUS (sensor and pre-arm bits; errors_comm = malformed frames)
   and EXTENDED_SYS_STATE at 2 Hz, GLOBAL_POSITION_INT at 5 Hz, HOME_POSITION on request (and
-  once a second until asked), AUTOPILOT_VERSION on request, STATUSTEXT on events.
+  once a second until asked) and on arming, AUTOPILOT_VERSION on request, STATUSTEXT on events.
+- Missions: none. MISSION_REQUEST_LIST is answered by MISSION_COUNT 0, an upload (MISSION_COUNT)
+  by MISSION_ACK MAV_MISSION_UNSUPPORTED and a STATUSTEXT.
 - Parameters (PARAM_REQUEST_LIST / _READ / PARAM_SET; int32 values carried bytewise in the float
   field as PX4 does): ``PARAMS`` below. A value out of range is refused: the current value is
   echoed.
@@ -48,23 +60,30 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402  (MAVLink 2 must be chosen before the import)
 
 from drivers.ned_enu import attitude_enu_to_ned, enu_to_ned, flu_to_frd, ned_to_enu, quat_to_rot, yaw_ned_to_enu  # noqa: E402
+from sim.sitl.quad_modes import (NO_MISSIONS, STATUSTEXT_LEN, Return, custom_mode, requested_mode,  # noqa: E402
+                                 split_custom_mode)
 
 log = logging.getLogger("sim.sitl.quad")
 mav = mavutil.mavlink
 
-MAIN = {"MANUAL": 1, "ALTCTL": 2, "POSCTL": 3, "AUTO": 4, "ACRO": 5, "OFFBOARD": 6}
-AUTO_SUB = {"READY": 1, "TAKEOFF": 2, "LOITER": 3, "MISSION": 4, "RTL": 5, "LAND": 6}
-MODES = {"AUTO.LOITER": (4, 3), "AUTO.TAKEOFF": (4, 2), "AUTO.LAND": (4, 6), "OFFBOARD": (6, 0)}
 ON_GROUND, IN_AIR, TAKEOFF, LANDING = 1, 2, 3, 4
 MASK_ACCEL, MASK_VELOCITY = 3135, 2503
 FORCE_DISARM = 21196
+# the position loop of the hold, take-off, land and return modes: v_des = POSITION_GAIN (target - p),
+# each axis within SPEED_MAX m/s (the climb of a take-off within MPC_TKO_SPEED, a descent at
+# MPC_LAND_SPEED), then a = VELOCITY_GAIN (v_des - v) (damping ratio 0.71); OFFBOARD's velocity
+# setpoints go through the same velocity loop
+POSITION_GAIN, VELOCITY_GAIN, SPEED_MAX = 2.0, 4.0, 2.0
 SENSORS = 0x1 | 0x2 | 0x4 | 0x8 | 0x20
 PREARM = 0x10000000
 FLOAT, INT32 = mav.MAV_PARAM_TYPE_REAL32, mav.MAV_PARAM_TYPE_INT32
-# name: (default, type, minimum, maximum)
+# name: (default, type, minimum, maximum): PX4's names, ranges and defaults, but NAV_ACC_RAD's 0.5 m
+# (PX4: 10 m): the return's descent begins within it of home
 PARAMS = {"MIS_TAKEOFF_ALT": (2.5, FLOAT, 0.5, 100.0), "MPC_TKO_SPEED": (1.5, FLOAT, 0.3, 5.0),
           "MPC_LAND_SPEED": (0.7, FLOAT, 0.2, 3.0), "COM_OF_LOSS_T": (1.0, FLOAT, 0.1, 60.0),
-          "COM_OBL_ACT": (1, INT32, 0, 1), "NAV_OBL_HOLD_T": (5.0, FLOAT, 0.0, 600.0)}
+          "COM_OBL_ACT": (1, INT32, 0, 1), "NAV_OBL_HOLD_T": (5.0, FLOAT, 0.0, 600.0),
+          "RTL_RETURN_ALT": (60.0, FLOAT, 0.0, 150.0), "NAV_MC_ALT_RAD": (0.8, FLOAT, 0.05, 200.0),
+          "NAV_ACC_RAD": (0.5, FLOAT, 0.05, 200.0)}
 STREAMS = (mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav.MAVLINK_MSG_ID_ATTITUDE, mav.MAVLINK_MSG_ID_ATTITUDE_QUATERNION)
 
 
@@ -121,6 +140,8 @@ class QuadSitl:
         self.landed_state = ON_GROUND
         self._setpoint: tuple[str, np.ndarray, float, float] | None = None     # kind, NED vector, yaw, arrival
         self._target = np.zeros(3)
+        self._home_enu = np.zeros(3)                    # where it was last armed (at boot: the origin)
+        self._return: Return | None = None
         self._obl_land_at: float | None = None
         self._touchdown_at: float | None = None
         self._home_requested = False
@@ -220,8 +241,17 @@ class QuadSitl:
         self.counts["frames_ok"] += 1
         if kind in ("COMMAND_LONG", "COMMAND_INT"):
             self._on_command(msg, kind)
+        elif kind == "SET_MODE":                            # PX4 takes it as DO_SET_MODE and ACKs that
+            main, sub = split_custom_mode(int(msg.custom_mode))
+            self._command(mav.MAV_CMD_DO_SET_MODE, [float(msg.base_mode), float(main), float(sub)] + [0.0] * 4, msg)
         elif kind == "SET_POSITION_TARGET_LOCAL_NED":
             self._on_setpoint(msg)
+        elif kind == "MISSION_REQUEST_LIST":                # no mission: an empty list, as PX4 without one
+            self.conn.mav.mission_count_send(msg.get_srcSystem(), msg.get_srcComponent(), 0, msg.mission_type)
+        elif kind == "MISSION_COUNT":                       # an upload: refused
+            self.conn.mav.mission_ack_send(msg.get_srcSystem(), msg.get_srcComponent(), mav.MAV_MISSION_UNSUPPORTED,
+                                           msg.mission_type)
+            self._statustext(mav.MAV_SEVERITY_WARNING, f"upload: {NO_MISSIONS}")
         elif kind == "PARAM_REQUEST_LIST":
             for i, name in enumerate(PARAMS):
                 self._param_value(name, i)
@@ -231,47 +261,68 @@ class QuadSitl:
             self._on_param_set(msg)
 
     def _on_command(self, msg, kind: str) -> None:
-        cmd = msg.command
         p = [msg.param1, msg.param2, msg.param3, msg.param4]
         if kind == "COMMAND_LONG":
             p += [msg.param5, msg.param6, msg.param7]
         else:
             p += [msg.x, msg.y, msg.z]
-        result = self._command_result(cmd, p)
-        if result != mav.MAV_RESULT_ACCEPTED:
-            self.counts["rejected_commands"] += 1
-            log.debug("event=command_rejected command=%d result=%d", cmd, result)
+        self._command(msg.command, p, msg)
+
+    def _command(self, cmd: int, p: list, msg) -> None:
+        """Decide, apply, ACK to the sender, then send what was asked for, or why it was refused."""
+        result, reason = self._command_result(cmd, p)
         if result == mav.MAV_RESULT_ACCEPTED:
             self._apply(cmd, p)                    # the state changes before the ACK leaves
+        else:
+            self.counts["rejected_commands"] += 1
+            log.info("event=command_rejected command=%d result=%d reason=%r", cmd, result, reason)
         self.conn.mav.command_ack_send(cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
         if result == mav.MAV_RESULT_ACCEPTED:
             self._respond(cmd, p)                  # requested messages follow their ACK
+        else:
+            self._statustext(mav.MAV_SEVERITY_WARNING, reason)
 
-    def _command_result(self, cmd: int, p: list) -> int:
-        denied, accepted = mav.MAV_RESULT_DENIED, mav.MAV_RESULT_ACCEPTED
+    def _command_result(self, cmd: int, p: list) -> tuple[int, str]:
+        """(MAV_RESULT, the reason when it is not ACCEPTED)."""
+        denied, accepted = mav.MAV_RESULT_DENIED, (mav.MAV_RESULT_ACCEPTED, "")
         if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
             if not math.isfinite(p[0]):
-                return denied
-            if p[0] >= 0.5:
+                return denied, "arm/disarm denied: param1 is not a number"
+            if p[0] >= 0.5 or not self.in_air or p[1] == FORCE_DISARM:
                 return accepted
-            return accepted if (not self.in_air or p[1] == FORCE_DISARM) else denied
+            return denied, "disarm denied: in the air"
         if cmd == mav.MAV_CMD_NAV_TAKEOFF:
-            return accepted if self.armed else denied
+            return accepted if self.armed else (denied, "take-off denied: not armed")
         if cmd == mav.MAV_CMD_NAV_LAND:
             return accepted
         if cmd == mav.MAV_CMD_DO_SET_MODE:
             if not all(math.isfinite(v) for v in p[:3]):
-                return denied
-            main, sub = int(p[1]), int(p[2])
-            if main == MAIN["OFFBOARD"]:
-                return accepted if self.armed and self._setpoint_fresh(time.monotonic()) else denied
-            if main == MAIN["AUTO"] and sub in (AUTO_SUB["LOITER"], AUTO_SUB["LAND"]):
-                return accepted
-            return mav.MAV_RESULT_UNSUPPORTED
-        if cmd in (mav.MAV_CMD_REQUEST_MESSAGE, mav.MAV_CMD_GET_HOME_POSITION,
-                   mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, mav.MAV_CMD_SET_MESSAGE_INTERVAL):
-            return accepted if all(math.isfinite(v) for v in p[:2]) else denied
-        return mav.MAV_RESULT_UNSUPPORTED
+                return denied, "mode change denied: a parameter is not a number"
+            mode, reason = requested_mode(int(p[0]), int(p[1]), int(p[2]))
+            if mode is None:
+                return mav.MAV_RESULT_UNSUPPORTED, reason
+            return self._mode_result(mode)
+        if cmd == mav.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            return self._mode_result("AUTO.RTL")
+        if cmd == mav.MAV_CMD_GET_HOME_POSITION:
+            return accepted
+        if cmd in (mav.MAV_CMD_REQUEST_MESSAGE, mav.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
+                   mav.MAV_CMD_SET_MESSAGE_INTERVAL):          # the unused parameters may be NaN (MAVSDK's are)
+            used = 2 if cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL else 1
+            if not all(math.isfinite(v) for v in p[:used]):
+                return denied, "request denied: a parameter is not a number"
+            return accepted
+        return mav.MAV_RESULT_UNSUPPORTED, f"command {cmd} not supported by this SITL"
+
+    def _mode_result(self, mode: str) -> tuple[int, str]:
+        """Whether a mode it flies may be entered now."""
+        if mode == "OFFBOARD" and not self.armed:
+            return mav.MAV_RESULT_DENIED, "OFFBOARD denied: not armed"
+        if mode == "OFFBOARD" and not self._setpoint_fresh(time.monotonic()):
+            return mav.MAV_RESULT_DENIED, "OFFBOARD denied: no fresh setpoint"
+        if mode == "AUTO.RTL" and not (self.armed and self.in_air):
+            return mav.MAV_RESULT_DENIED, "RTL denied: not in the air"
+        return mav.MAV_RESULT_ACCEPTED, ""
 
     def _apply(self, cmd: int, p: list) -> None:
         if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
@@ -280,18 +331,23 @@ class QuadSitl:
             alt = p[6] if math.isfinite(p[6]) and p[6] > 0 else self.params["MIS_TAKEOFF_ALT"]
             pos = self.plant.position()
             self._target = np.array([pos[0], pos[1], alt])
+            self._return = None
             self.landed_state = TAKEOFF
             self._set_mode("AUTO.TAKEOFF")
         elif cmd == mav.MAV_CMD_NAV_LAND:
             self._land()
+        elif cmd == mav.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            self._rtl()
         elif cmd == mav.MAV_CMD_DO_SET_MODE:
-            main, sub = int(p[1]), int(p[2])
-            if main == MAIN["OFFBOARD"]:
-                self._set_mode("OFFBOARD")
-            elif sub == AUTO_SUB["LAND"]:
+            mode, _ = requested_mode(int(p[0]), int(p[1]), int(p[2]))
+            if mode == "OFFBOARD":
+                self._offboard()
+            elif mode == "AUTO.LAND":
                 self._land()
-            else:
-                self._hold()
+            elif mode == "AUTO.RTL":
+                self._rtl()
+            else:                                  # AUTO.LOITER, POSCTL, ALTCTL: hold here
+                self._hold(mode)
         elif cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
             self._set_interval(int(p[0]), p[1])
 
@@ -362,23 +418,59 @@ class QuadSitl:
     def _set_armed(self, armed: bool) -> None:
         if armed != self.armed:
             self.armed = armed
-            if not armed:
+            if armed:
+                self._home_enu = self.plant.position().copy()        # home is where it is armed, as in PX4
+            else:
                 self.landed_state = ON_GROUND
                 self._touchdown_at = None
             log.info("event=%s", "armed" if armed else "disarmed")
             self._statustext(mav.MAV_SEVERITY_INFO, "armed" if armed else "disarmed")
             self._heartbeat()
+            if armed:
+                self._send_message(mav.MAVLINK_MSG_ID_HOME_POSITION)
 
-    def _hold(self) -> None:
-        self._target = self.plant.position().copy()
+    def _flying(self, mode: str, target) -> None:
+        """Enter ``mode`` flying to ``target`` (ENU): a landing or a return under way ends."""
+        self._target = np.array(target, dtype=float)
+        self._return = None
+        if self.in_air:
+            self.landed_state = IN_AIR
+        self._set_mode(mode)
+
+    def _hold(self, mode: str = "AUTO.LOITER") -> None:
         self._obl_land_at = None
-        self._set_mode("AUTO.LOITER")
+        self._flying(mode, self.plant.position())
+
+    def _offboard(self) -> None:
+        self._flying("OFFBOARD", self.plant.position())
 
     def _land(self) -> None:
         self._target = self.plant.position().copy()
+        self._return = None
         if self.in_air:
             self.landed_state = LANDING
         self._set_mode("AUTO.LAND")
+
+    def _rtl(self) -> None:
+        self._obl_land_at = None
+        ret = Return(self.plant.position(), self._home_enu, return_alt=self.params["RTL_RETURN_ALT"],
+                     alt_radius=self.params["NAV_MC_ALT_RAD"], xy_radius=self.params["NAV_ACC_RAD"])
+        self._flying("AUTO.RTL", ret.target())
+        self._return = ret
+        self._statustext(mav.MAV_SEVERITY_INFO, f"RTL: climb to {ret.altitude:.1f} m")
+        self._follow_return()
+
+    def _follow_return(self) -> None:
+        ret = self._return
+        if ret is None or not ret.advance(self.plant.position()):
+            return
+        self._target = ret.target()
+        log.info("event=rtl_phase phase=%s", ret.phase)
+        if ret.phase == Return.DESCEND:
+            self.landed_state = LANDING
+            self._statustext(mav.MAV_SEVERITY_INFO, "RTL: landing at home")
+        else:
+            self._statustext(mav.MAV_SEVERITY_INFO, "RTL: flying home")
 
     def _setpoint_fresh(self, now: float) -> bool:
         return self._setpoint is not None and now - self._setpoint[3] <= self.params["COM_OF_LOSS_T"]
@@ -391,7 +483,7 @@ class QuadSitl:
             return                                          # on the ground: motors idle, nothing moves
         self.plant.step(self._acceleration(now), dt)
         p = self.plant.position()
-        if p[2] <= 0.0 or (self._mode == "AUTO.LAND" and p[2] <= 0.05):
+        if p[2] <= 0.0 or (self.landed_state == LANDING and p[2] <= 0.05):
             self._touchdown(p)
 
     def _supervise(self, now: float) -> None:
@@ -412,6 +504,8 @@ class QuadSitl:
                 and abs(self.plant.velocity_world()[2]) < 0.1:
             self.landed_state = IN_AIR
             self._hold()
+        if self._mode == "AUTO.RTL" and self.landed_state == IN_AIR:          # climbing or flying back
+            self._follow_return()
         if self._touchdown_at is not None and now - self._touchdown_at >= 1.0 and self.armed:
             self._set_armed(False)
 
@@ -431,15 +525,15 @@ class QuadSitl:
             if kind == "accel":
                 a = ned_to_enu(vec)
             else:
-                a = 2.0 * (ned_to_enu(vec) - v)
+                a = VELOCITY_GAIN * (ned_to_enu(vec) - v)
                 self.plant.set_yaw_setpoint(yaw_ned_to_enu(yaw))
             return self._clip(a)
-        v_des = np.clip(1.0 * (self._target - p), -2.0, 2.0)
-        if self._mode == "AUTO.TAKEOFF":
-            v_des[2] = min(v_des[2], self.params["MPC_TKO_SPEED"])
-        elif self._mode == "AUTO.LAND":
+        v_des = np.clip(POSITION_GAIN * (self._target - p), -SPEED_MAX, SPEED_MAX)
+        if self._mode == "AUTO.TAKEOFF":                       # climbs at MPC_TKO_SPEED, whatever SPEED_MAX
+            v_des[2] = min(POSITION_GAIN * (self._target[2] - p[2]), self.params["MPC_TKO_SPEED"])
+        elif self.landed_state == LANDING:                     # AUTO.LAND, and AUTO.RTL's descent
             v_des[2] = -self.params["MPC_LAND_SPEED"]
-        return self._clip(2.0 * (v_des - v))
+        return self._clip(VELOCITY_GAIN * (v_des - v))
 
     def _clip(self, a: np.ndarray) -> np.ndarray:
         n = float(np.linalg.norm(a))
@@ -490,8 +584,9 @@ class QuadSitl:
             m.global_position_int_send(t_ms, lat, lon, int(alt * 1000), int(x[2] * 1000), int(n * 100), int(e * 100),
                                        int(d * 100), hdg)
         elif msg_id == mav.MAVLINK_MSG_ID_HOME_POSITION:
-            lat, lon, alt = self._geodetic(np.zeros(3))
-            m.home_position_send(lat, lon, int(alt * 1000), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
+            lat, lon, alt = self._geodetic(self._home_enu)
+            m.home_position_send(lat, lon, int(alt * 1000), *enu_to_ned(self._home_enu), [1.0, 0.0, 0.0, 0.0],
+                                 0.0, 0.0, 0.0)
         elif msg_id == mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             caps = (mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mav.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
                     | mav.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
@@ -499,15 +594,14 @@ class QuadSitl:
             m.autopilot_version_send(caps, 0x010E0000, 0, 0, 0, bytes(8), bytes(8), bytes(8), 0, 0, 0x5154)
 
     def _heartbeat(self) -> None:
-        main, sub = MODES[self._mode]
         base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
         status = mav.MAV_STATE_CRITICAL if self._obl_land_at is not None else (
             mav.MAV_STATE_ACTIVE if self.armed else mav.MAV_STATE_STANDBY)
-        self.conn.mav.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, base, (sub << 24) | (main << 16),
+        self.conn.mav.heartbeat_send(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, base, custom_mode(self._mode),
                                      status)
 
     def _statustext(self, severity: int, text: str) -> None:
-        self.conn.mav.statustext_send(severity, text.encode()[:50])
+        self.conn.mav.statustext_send(severity, text.encode()[:STATUSTEXT_LEN])
 
     def _armable(self) -> bool:
         return not self.armed

@@ -1,7 +1,6 @@
 """The PX4-like quadrotor autopilot against a pymavlink ground station on loopback."""
 
 import math
-import os
 import socket
 import struct
 import time
@@ -9,62 +8,13 @@ import time
 import numpy as np
 import pytest
 
-os.environ.setdefault("MAVLINK20", "1")
-from pymavlink import mavutil  # noqa: E402
+from gcs import RTL, Gcs, mav
+from loopback import free_port
+from sim.sitl.quad import PARAMS, QuadSitl, check_param
 
-from loopback import free_port  # noqa: E402
-from sim.sitl.quad import QuadSitl, check_param  # noqa: E402
-
-mav = mavutil.mavlink
 FAST = {"MIS_TAKEOFF_ALT": 1.0, "MPC_TKO_SPEED": 3.0, "COM_OF_LOSS_T": 0.3, "NAV_OBL_HOLD_T": 0.5,
         "MPC_LAND_SPEED": 2.0}
 OFFBOARD_MODE = 6 << 16
-
-
-class Gcs:
-    def __init__(self, port):
-        self.c = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=245, source_component=190,
-                                            dialect="common")
-        self.heartbeats = []                     # every HEARTBEAT read, whoever waited for what
-
-    def recv(self, kind, timeout=3.0, cond=lambda m: True):
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            m = self.c.recv_match(blocking=True, timeout=0.1)
-            if m is not None and m.get_type() == "HEARTBEAT":
-                self.heartbeats.append(m)
-            if m is not None and m.get_type() == kind and cond(m):
-                return m
-        raise AssertionError(f"no {kind} within {timeout} s")
-
-    def latest(self, kind):
-        """The newest ``kind`` message: the backlog is read first."""
-        last = None
-        while (m := self.c.recv_match(blocking=False)) is not None:
-            if m.get_type() == kind:
-                last = m
-        return last or self.recv(kind)
-
-    def command(self, cmd, *p, target=1):
-        p = list(p) + [0.0] * (7 - len(p))
-        self.c.mav.command_long_send(target, 1, cmd, 0, *p)
-        return self.recv("COMMAND_ACK", cond=lambda m: m.command == cmd)
-
-    def accel(self, n, e, d):
-        self.c.mav.set_position_target_local_ned_send(0, 1, 1, mav.MAV_FRAME_LOCAL_NED, 3135, 0, 0, 0, 0, 0, 0,
-                                                      n, e, d, 0, 0)
-
-    def velocity(self, n, e, d, yaw=0.0):
-        self.c.mav.set_position_target_local_ned_send(0, 1, 1, mav.MAV_FRAME_LOCAL_NED, 2503, 0, 0, 0, n, e, d,
-                                                      0, 0, 0, yaw, 0)
-
-    def takeoff(self):
-        assert self.command(400, 1).result == 0
-        assert self.command(22, *[math.nan] * 7).result == 0
-        self.recv("HEARTBEAT", 10, lambda m: m.custom_mode == (3 << 24) | (4 << 16))   # AUTO.LOITER after take-off
-
-    def close(self):
-        self.c.close()
 
 
 @pytest.fixture
@@ -90,16 +40,63 @@ def test_heartbeat_is_a_px4_quadrotor_and_acks_go_to_the_sender(rig):
     assert gcs.command(400, 0).result == 0 and not sitl.armed          # on the ground: disarm accepted
 
 
-def test_denied_cases(rig):
+def test_refusals_are_acked_and_each_says_why_in_a_statustext(rig):
     sitl, gcs, _ = rig
-    assert gcs.command(22, *[math.nan] * 7).result == mav.MAV_RESULT_DENIED                  # take-off disarmed
+    denied, unsupported = mav.MAV_RESULT_DENIED, mav.MAV_RESULT_UNSUPPORTED
+
+    def refused(ack, result, text):
+        assert ack.result == result
+        assert gcs.recv("STATUSTEXT", cond=lambda m: m.text == text).severity == mav.MAV_SEVERITY_WARNING
+
+    refused(gcs.command(22, *[math.nan] * 7), denied, "take-off denied: not armed")
+    refused(gcs.command(20), denied, "RTL denied: not in the air")
     assert gcs.command(400, 1).result == 0
-    assert gcs.command(176, 129, 6).result == mav.MAV_RESULT_DENIED                          # no setpoint yet
-    assert gcs.command(176, 129, 2).result == mav.MAV_RESULT_UNSUPPORTED                     # ALTCTL
-    assert gcs.command(31000).result == mav.MAV_RESULT_UNSUPPORTED
+    refused(gcs.command(176, 129, 6), denied, "OFFBOARD denied: no fresh setpoint")
+    refused(gcs.set_mode(4, 5), denied, "RTL denied: not in the air")                   # armed, on the ground
+    refused(gcs.set_mode(4, 4), unsupported, "AUTO.MISSION: missions not supported by this SITL")
+    refused(gcs.set_mode(7), unsupported, "STABILIZED: stick mode, unsupported by this SITL")
+    refused(gcs.command(176, 0, 4, 5), unsupported, "only PX4 custom modes are supported by this SITL")
+    refused(gcs.command(31000), unsupported, "command 31000 not supported by this SITL")
+    refused(gcs.command(511, 32, math.nan), denied, "request denied: a parameter is not a number")
+    gcs.c.mav.set_mode_send(1, 1, (4 << 24) | (4 << 16))                                 # SET_MODE: AUTO.MISSION
+    ack = gcs.recv("COMMAND_ACK")
+    assert (ack.command, ack.target_system) == (mav.MAV_CMD_DO_SET_MODE, 245)
+    refused(ack, unsupported, "AUTO.MISSION: missions not supported by this SITL")
+    gcs.c.mav.mission_request_list_send(1, 1)                                           # no mission
+    assert gcs.recv("MISSION_COUNT").count == 0
+    gcs.c.mav.mission_count_send(1, 1, 3)                                               # an upload
+    assert gcs.recv("MISSION_ACK").type == mav.MAV_MISSION_UNSUPPORTED
+    assert gcs.recv("STATUSTEXT").text == "upload: missions not supported by this SITL"
     gcs.takeoff()
-    assert gcs.command(400, 0).result == mav.MAV_RESULT_DENIED and sitl.armed                # in the air
-    assert sitl.stats()["rejected_commands"] == 5
+    refused(gcs.command(400, 0), denied, "disarm denied: in the air")
+    assert sitl.armed and sitl.mode == "AUTO.LOITER" and sitl.stats()["rejected_commands"] == 11
+
+
+def test_set_mode_message_starts_the_return_and_altctl_holds_where_it_was_set(rig):
+    sitl, gcs, _ = rig
+    gcs.takeoff()
+    gcs.c.mav.set_mode_send(1, 1, RTL)                                                   # as older stations do
+    ack = gcs.recv("COMMAND_ACK")
+    assert (ack.command, ack.result) == (mav.MAV_CMD_DO_SET_MODE, mav.MAV_RESULT_ACCEPTED)
+    gcs.shown(RTL)
+    assert "RTL: climb to 60.0 m" in gcs.texts                                          # PX4's RTL_RETURN_ALT
+    time.sleep(0.3)
+    assert gcs.set_mode(2).result == mav.MAV_RESULT_ACCEPTED                            # ALTCTL, climbing
+    at_switch = sitl.position.copy()
+    gcs.shown(2 << 16)
+    assert at_switch[2] > 1.2 and sitl.landed_state == 2                                 # climbed, in the air
+    time.sleep(1.5)
+    assert np.linalg.norm(sitl.position - at_switch) < 0.1
+    assert np.linalg.norm(sitl.plant.velocity_world()) < 0.1
+
+
+def test_home_is_where_it_was_armed(rig):
+    sitl, gcs, _ = rig
+    sitl.plant.reset(np.array([2.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0]))                     # on the ground elsewhere
+    assert gcs.command(400, 1).result == 0
+    home = gcs.last["HOME_POSITION"]                                                     # sent on arming
+    assert (home.x, home.y, home.z) == pytest.approx((-1.0, 2.0, 0.0))                   # NED: north -1, east 2
+    assert home.latitude < 473977420 and home.longitude > 85455940
 
 
 def test_takeoff_then_offboard_acceleration_and_velocity_setpoints(rig):
@@ -147,10 +144,11 @@ def test_parameter_protocol(rig):
     sitl, gcs, _ = rig
     gcs.c.mav.param_request_list_send(1, 1)
     got = {}
-    while len(got) < 6:
+    while len(got) < len(PARAMS):
         m = gcs.recv("PARAM_VALUE")
         got[m.param_id] = m
-    assert got["MIS_TAKEOFF_ALT"].param_value == pytest.approx(1.0) and got["MIS_TAKEOFF_ALT"].param_count == 6
+    assert got["MIS_TAKEOFF_ALT"].param_value == pytest.approx(1.0) and got["MIS_TAKEOFF_ALT"].param_count == 9
+    assert got["RTL_RETURN_ALT"].param_value == pytest.approx(60.0)            # PX4's default
     act = got["COM_OBL_ACT"]
     assert act.param_type == mav.MAV_PARAM_TYPE_INT32           # carried bytewise, as PX4 does
     assert struct.unpack("<i", struct.pack("<f", act.param_value))[0] == 1
@@ -172,7 +170,7 @@ def test_home_position_and_autopilot_version_on_request(rig):
     assert gcs.command(512, 242).result == 0
     home = gcs.recv("HOME_POSITION")
     assert home.latitude == 473977420 and (home.x, home.y, home.z) == (0, 0, 0)
-    assert gcs.command(512, 148).result == 0
+    assert gcs.command(512, 148, *[math.nan] * 6).result == 0                # the unused parameters NaN, as MAVSDK
     v = gcs.recv("AUTOPILOT_VERSION")
     assert v.capabilities & mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2
     assert gcs.command(511, 32, 20000).result == 0                       # LOCAL_POSITION_NED at 50 Hz
@@ -238,3 +236,47 @@ def test_a_restarted_ground_station_is_served(rig):
         assert gcs2.command(400, 1).result == 0
     finally:
         gcs2.close()
+
+
+def test_return_path_in_simulated_time_and_a_station_taking_over_in_the_descent():
+    """The autopilot stepped by hand (no thread, no station): the take-off's climb rate, the
+    return's phases, where it lands, and POSCTL in the descent stopping it."""
+    sitl = QuadSitl("127.0.0.1", free_port(), params={**FAST, "MIS_TAKEOFF_ALT": 4.0, "RTL_RETURN_ALT": 3.0})
+    dt = sitl.dt
+
+    def command(cmd, *p):
+        p = list(p) + [0.0] * (7 - len(p))
+        result, _ = sitl._command_result(cmd, p)
+        if result == mav.MAV_RESULT_ACCEPTED:
+            sitl._apply(cmd, p)
+        return result
+
+    def fly(seconds, until=lambda: False):
+        for _ in range(int(seconds / dt)):
+            sitl._step(dt)
+            if until():
+                return True
+        return False
+
+    try:
+        assert command(400, 1) == 0 and command(22, *[math.nan] * 7) == 0
+        climb = []
+        assert fly(5, lambda: climb.append(sitl.plant.velocity_world()[2]) or sitl.mode == "AUTO.LOITER")
+        assert max(climb) == pytest.approx(FAST["MPC_TKO_SPEED"], abs=0.1)      # past the hold's 2 m/s
+        sitl.plant.reset(np.array([4.0, -3.0, 1.0, 0.0, 0.0, 0.0, 0.0]))     # 5 m from home, 1 m up
+        assert command(20) == 0 and sitl.mode == "AUTO.RTL" and sitl._return.phase == "climb"
+        assert fly(5, lambda: sitl._return.phase == "back")
+        p = sitl.position
+        assert p[2] >= 3.0 - 0.8 and np.linalg.norm(p[:2] - [4.0, -3.0]) < 0.1     # straight up first
+        assert fly(10, lambda: sitl._return.phase == "descend") and sitl.landed_state == 4   # LANDING
+        assert fly(5, lambda: sitl.position[2] < 1.5)
+        assert command(176, 1, 3) == 0 and sitl.landed_state == 2                       # POSCTL: in the air
+        held = sitl.position.copy()
+        fly(1.0)
+        assert np.linalg.norm(sitl.position - held) < 0.15 and sitl.in_air
+        assert command(176, 1, 4, 5) == 0                                               # RTL again: up, then down
+        assert fly(20, lambda: not sitl.in_air)
+        assert np.linalg.norm(sitl.position[:2]) < 0.05 and sitl.position[2] == 0.0 and sitl.landed_state == 1
+        assert sitl.mode == "AUTO.RTL"
+    finally:
+        sitl.conn.close()
