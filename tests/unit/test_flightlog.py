@@ -57,7 +57,7 @@ def write_log(path, header: MissionHeader, n: int = 200) -> None:
 
 
 def test_missing_file(tmp_path):
-    with pytest.raises(ConfigError, match="cannot open") as err:
+    with pytest.raises(ConfigError, match="file not found") as err:
         read_flight_log(tmp_path / "nope.mcap")
     assert err.value.field == "<file>" and err.value.file == str(tmp_path / "nope.mcap")
 
@@ -129,3 +129,13 @@ def test_plot_of_log_without_ticks(tmp_path):
     log = read_flight_log(path)
     assert len(log) == 0 and log.state.shape == (0, 6) and log.reference.shape == (0, 2)
     assert plot_flight_log(log, tmp_path / "e.png").stat().st_size > 0
+
+
+def test_a_fifo_or_a_device_is_refused_without_blocking(tmp_path):
+    import os
+
+    fifo = tmp_path / "log.mcap"
+    os.mkfifo(fifo)
+    for path, what in ((fifo, "a FIFO"), ("/dev/zero", "a character device")):
+        with pytest.raises(ConfigError, match=f"not a regular file \\({what}\\)"):
+            read_flight_log(path)

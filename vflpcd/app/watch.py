@@ -44,7 +44,7 @@ class Board:
         raw = sample.payload.to_bytes()
         try:
             value = json.loads(raw)
-        except ValueError:
+        except (ValueError, RecursionError):
             value = raw[:80].decode(errors="replace")
         now = time.monotonic()
         with self._lock:

@@ -113,6 +113,8 @@ def parse_message(payload: bytes, dim: int, now_unix: float, limits: PerceptionL
         msg = json.loads(payload)
     except (ValueError, UnicodeDecodeError) as exc:
         raise PerceptionError(f"not valid JSON ({exc})") from None
+    except RecursionError:
+        raise PerceptionError("JSON nested too deeply") from None
     if not isinstance(msg, dict):
         raise PerceptionError(f"payload is not a JSON object (got {type(msg).__name__})")
     stamp = _number(_get(msg, "stamp", ""), "stamp")

@@ -21,8 +21,8 @@ from mcap.stream_reader import StreamReader
 
 from vflpcd.log.records import Event, MissionHeader
 from vflpcd.base.errors import ConfigError
+from vflpcd.base.inputfile import DATA_MAX_BYTES, FILE_FIELD, open_binary
 
-FILE_FIELD = "<file>"
 MAGIC_SIZE = 8
 
 
@@ -101,10 +101,7 @@ def read_flight_log(path: str | Path) -> FlightLog:
     ticks: list[dict] = []
     events: list[Event] = []
     truncated = True
-    try:
-        f = open(path, "rb")
-    except OSError as exc:
-        raise ConfigError(path, FILE_FIELD, f"cannot open the flight log ({exc.strerror or exc})") from exc
+    f = open_binary(path, DATA_MAX_BYTES)     # a regular file (a FIFO or a device never blocks the reader)
     with f:
         stream = _WholeReads(f)
         reader = StreamReader(stream, record_size_limit=1 << 30)

@@ -154,6 +154,7 @@ INVALID = [
     (message(["x"]), "obstacles[0] must be an object"),
     (message([obstacle(center=(True, 1.0))]), "obstacles[0].center[0] must be a finite number"),
     (b" " * (64 * 1024 + 1), "payload too large"),
+    (b"[" * 30000 + b"]" * 30000, "JSON nested too deeply"),          # within the size limit
 ]
 
 
