@@ -5,11 +5,17 @@ from __future__ import annotations
 
 import contextlib
 import socket
+import struct
 import subprocess
 import sys
+import threading
 import time
 
+import can
+
 from loopback import free_port
+
+INS_POSITION = 0x300     # config/can/vehicle.dbc
 
 
 def start_hub(port: int) -> subprocess.Popen:
@@ -47,3 +53,49 @@ def can_hub(port: int | None = None):
         yield f"ws://127.0.0.1:{port}/", proc
     finally:
         stop(proc)
+
+
+class BusTap:
+    """A bus client of its own that records every frame: (monotonic receive time, id, data)."""
+
+    def __init__(self, url: str) -> None:
+        self.bus = can.Bus(interface="remote", channel=url)
+        self.frames: list[tuple[float, int, bytes]] = []
+        self.x = float("-inf")                 # the newest InsPosition's PosX
+        self.error: BaseException | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="can-tap", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                msg = self.bus.recv(0.05)
+                if msg is None:
+                    continue
+                self.frames.append((time.monotonic(), msg.arbitration_id, bytes(msg.data)))
+                self.on_frame(msg)
+        except BaseException as exc:           # the test reports it
+            self.error = exc
+
+    def on_frame(self, msg: can.Message) -> None:
+        """Every frame after it is recorded: the newest InsPosition's PosX becomes ``x``."""
+        if msg.arbitration_id == INS_POSITION:
+            self.x = struct.unpack_from("<i", bytes(msg.data))[0] * 1e-3
+
+    def wait_x(self, x: float, timeout: float) -> float:
+        """When the car (InsPosition) passed ``x``."""
+        deadline = time.monotonic() + timeout
+        while self.x < x:
+            assert self.error is None, f"the bus tap failed: {self.error!r}"
+            assert time.monotonic() < deadline, f"the car did not pass x = {x} m within {timeout} s (x = {self.x})"
+            time.sleep(0.01)
+        return time.monotonic()
+
+    def since(self, frame_id: int, t0: float, t1: float = float("inf")) -> list[tuple[float, bytes]]:
+        return [(t, d) for t, i, d in list(self.frames) if i == frame_id and t0 <= t <= t1]
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self.bus.shutdown()

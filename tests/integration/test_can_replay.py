@@ -28,7 +28,7 @@ from pathlib import Path
 import can
 import numpy as np
 
-from canhub import can_hub
+from canhub import BusTap, can_hub
 from drivers.can_codec import VehicleCan
 from processes import Proc, descendants, wait_gone
 from vflpcd.config.scenarios import load_scenario
@@ -55,49 +55,6 @@ def mission_copy(folder: Path, url: str) -> Path:
     path = folder / "vehicle_can.toml"
     path.write_text(text)
     return path
-
-
-class BusTap:
-    """A bus client of its own that records every frame: (monotonic receive time, id, data)."""
-
-    def __init__(self, url: str) -> None:
-        self.bus = can.Bus(interface="remote", channel=url)
-        self.frames: list[tuple[float, int, bytes]] = []
-        self.x = float("-inf")                 # the newest InsPosition's PosX
-        self.error: BaseException | None = None
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="can-tap", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        try:
-            while not self._stop.is_set():
-                msg = self.bus.recv(0.05)
-                if msg is None:
-                    continue
-                data = bytes(msg.data)
-                self.frames.append((time.monotonic(), msg.arbitration_id, data))
-                if msg.arbitration_id == INS_POSITION:
-                    self.x = struct.unpack_from("<i", data)[0] * 1e-3
-        except BaseException as exc:           # the test reports it
-            self.error = exc
-
-    def wait_x(self, x: float, timeout: float) -> float:
-        """When the car (InsPosition) passed ``x``."""
-        deadline = time.monotonic() + timeout
-        while self.x < x:
-            assert self.error is None, f"the bus tap failed: {self.error!r}"
-            assert time.monotonic() < deadline, f"the car did not pass x = {x} m within {timeout} s (x = {self.x})"
-            time.sleep(0.01)
-        return time.monotonic()
-
-    def since(self, frame_id: int, t0: float, t1: float = float("inf")) -> list[tuple[float, bytes]]:
-        return [(t, d) for t, i, d in list(self.frames) if i == frame_id and t0 <= t <= t1]
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-        self.bus.shutdown()
 
 
 class Replay:

@@ -28,11 +28,12 @@ from pathlib import Path
 import can
 import numpy as np
 
-from canhub import can_hub
+from canhub import BusTap, can_hub
 from drivers.can_codec import VehicleCan
 from drivers.can_secoc import AUTH_ID_OFFSET, Receiver, auth_pdu, load_key
 from processes import Proc
 from vflpcd.base.paths import config_dir
+from vflpcd.config.scenarios import line_scenario_toml
 from vflpcd.log.reader import read_flight_log
 
 MISSION = config_dir() / "missions" / "vehicle_can_secoc.toml"
@@ -46,32 +47,7 @@ ON_ROAD_M = 0.3              # lateral error the car keeps below (a 3 m spoofed 
 
 def short_road(folder: Path) -> Path:
     path = folder / "straight.toml"
-    path.write_text(f"""name = "straight"
-description = "{ROUTE_END_X:g} m straight road at 25 km/h"
-platform = "ground"
-control_period = 0.05
-t_max = 20.0
-[vehicle]
-plant = "dynamic_bicycle"
-params = "nominal"
-[path]
-kind = "line"
-start = [0.0, 0.0]
-end = [{ROUTE_END_X:g}, 0.0]
-[start]
-position = [0.0, 0.0]
-yaw = 0.0
-speed = 6.944
-[speed]
-desired = 6.944
-a_lat_max = 3.0
-[goal]
-tolerance = 1.0
-[metrics]
-q1 = 1.0
-q2 = 1.0
-R = [[0.1, 0.0], [0.0, 1.0]]
-""")
+    path.write_text(line_scenario_toml("straight", length=ROUTE_END_X, speed=6.944, t_max=20.0))
     return path
 
 
@@ -90,55 +66,26 @@ def mission_copy(folder: Path, url: str) -> Path:
     return path
 
 
-class Tap:
-    """A bus client that records every frame (monotonic time, id, data) and the car's authenticated
-    positions; ``pairs(frame_id)``: the recorded data frames with the authentication PDU after them."""
+class Tap(BusTap):
+    """The bus tap with the car's authenticated positions; ``pairs(frame_id)``: the recorded data
+    frames with the authentication PDU after them."""
 
     def __init__(self, url: str) -> None:
-        self.bus = can.Bus(interface="remote", channel=url)
-        self.frames: list[tuple[float, int, bytes]] = []
         self.positions: list[tuple[float, float]] = []
         self.rejected: list[str] = []
         self.rx = Receiver(KEY, (INS_POSITION,), lambda e: self.rejected.append(e.kind))
-        self.error: BaseException | None = None
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="can-tap", daemon=True)
-        self._thread.start()
+        super().__init__(url)
 
-    def _run(self) -> None:
-        try:
-            while not self._stop.is_set():
-                msg = self.bus.recv(0.05)
-                if msg is None:
-                    continue
-                self.frames.append((time.monotonic(), msg.arbitration_id, bytes(msg.data)))
-                ok = self.rx.feed(msg)
-                if ok is not None and ok.arbitration_id == INS_POSITION:
-                    self.positions.append(tuple(np.array(struct.unpack("<ii", bytes(ok.data))) * 1e-3))
-        except BaseException as exc:           # the test reports it
-            self.error = exc
-
-    @property
-    def x(self) -> float:
-        return self.positions[-1][0] if self.positions else float("-inf")
-
-    def wait_x(self, x: float, timeout: float) -> float:
-        deadline = time.monotonic() + timeout
-        while self.x < x:
-            assert self.error is None, f"the bus tap failed: {self.error!r}"
-            assert time.monotonic() < deadline, f"the car did not pass x = {x} m within {timeout} s (x = {self.x})"
-            time.sleep(0.01)
-        return time.monotonic()
+    def on_frame(self, msg: can.Message) -> None:
+        ok = self.rx.feed(msg)
+        if ok is not None and ok.arbitration_id == INS_POSITION:
+            self.positions.append(tuple(np.array(struct.unpack("<ii", bytes(ok.data))) * 1e-3))
+            self.x = self.positions[-1][0]
 
     def pairs(self, frame_id: int, t0: float, t1: float) -> list[tuple[bytes, bytes]]:
         frames = [(i, d) for t, i, d in list(self.frames) if t0 <= t <= t1]
         return [(d, frames[k + 1][1]) for k, (i, d) in enumerate(frames[:-1])
                 if i == frame_id and frames[k + 1][0] == frame_id + AUTH_ID_OFFSET]
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-        self.bus.shutdown()
 
 
 class Attacker:
