@@ -99,3 +99,15 @@ class BusTap:
         self._stop.set()
         self._thread.join(2.0)
         self.bus.shutdown()
+
+
+def close_all(sender, tap: BusTap | None, *procs) -> None:
+    """A test's clean-up: stop the frame ``sender`` (an attacker or a replay) if it still runs,
+    close the ``tap``, kill the processes (``processes.Proc``) that did not end."""
+    if sender is not None and sender.running:
+        sender.stop()
+    if tap is not None:
+        tap.close()
+    for proc in procs:
+        if proc is not None and proc.p.poll() is None:
+            proc.kill()

@@ -28,7 +28,7 @@ from pathlib import Path
 import can
 import numpy as np
 
-from canhub import BusTap, can_hub
+from canhub import BusTap, can_hub, close_all
 from drivers.can_codec import VehicleCan
 from processes import Proc, descendants, wait_gone
 from vflpcd.config.scenarios import load_scenario
@@ -137,13 +137,7 @@ def test_replayed_commands_trip_the_failsafe_and_the_car_stops_near_the_route(tm
             ecu.stop()
             daemon_text = daemon.text()
         finally:
-            if replay is not None and replay.running:
-                replay.stop()
-            if tap is not None:
-                tap.close()
-            for proc in (daemon, ecu):
-                if proc is not None and proc.p.poll() is None:
-                    proc.kill()
+            close_all(replay, tap, daemon, ecu)
     assert tap.error is None, f"the bus tap failed: {tap.error!r}"
 
     # The failsafe, soon after the replay started; exit code 3.

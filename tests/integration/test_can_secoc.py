@@ -28,7 +28,7 @@ from pathlib import Path
 import can
 import numpy as np
 
-from canhub import BusTap, can_hub
+from canhub import BusTap, can_hub, close_all
 from drivers.can_codec import VehicleCan
 from drivers.can_secoc import AUTH_ID_OFFSET, Receiver, auth_pdu, load_key
 from processes import Proc
@@ -186,13 +186,7 @@ def test_replayed_forged_and_spoofed_frames_are_rejected_and_counted_and_the_car
             ecu.stop()
             daemon_text = daemon.text()
         finally:
-            if attacker is not None and attacker.running:
-                attacker.stop()
-            if tap is not None:
-                tap.close()
-            for proc in (daemon, ecu):
-                if proc is not None and proc.p.poll() is None:
-                    proc.kill()
+            close_all(attacker, tap, daemon, ecu)
     assert tap.error is None, f"the bus tap failed: {tap.error!r}"
     assert daemon.p.returncode is not None and ecu.p.returncode is not None
 
