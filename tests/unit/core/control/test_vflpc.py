@@ -57,9 +57,8 @@ def test_diverging_solver_falls_back_to_the_terminal_lqr(straight):
 
     Broken.resets = 0
     ctrl.solver = Broken()
-    ctrl._light_mode = (ctrl._light_mode[0], Broken())   # the light weights are tried first: both fail
     u = ctrl.step(plant.state, 0.0)
-    assert np.all(np.isfinite(u)) and ctrl.fallbacks == 2 and Broken.resets >= 2
+    assert np.all(np.isfinite(u)) and ctrl.fallbacks == 1 and Broken.resets == 1
     assert np.all(u >= ctrl.limits.u_min) and np.all(u <= ctrl.limits.u_max)
 
 

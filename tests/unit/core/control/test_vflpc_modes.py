@@ -153,10 +153,15 @@ def test_the_refits_hyperparameter_bounds_come_from_the_config(straight):
         vflpc_params(_table({"compensation": {"sf2_bounds": [0.0, 0.1]}}), "ground")
 
 
-def test_light_weights_while_their_plans_keep_the_rate_limit(straight):
-    """On the straight the light increment weights plan steps within the steering rate and are
-    kept; a plan that breaks the rate limit is solved again with the cruise weights, which then
-    stay for light_hold seconds."""
+def test_light_weights_while_their_plans_keep_the_rate_limit(straight, monkeypatch):
+    """On the straight the light increment weights (when configured) plan steps within the steering
+    rate and are kept; a plan that breaks the rate limit is solved again with the cruise weights,
+    which then stay for light_hold seconds."""
+    import vflpcd.controllers.vflpc as factory
+
+    shipped = factory.load_params
+    monkeypatch.setattr(factory, "load_params", lambda platform, path=None: dataclasses.replace(
+        shipped(platform, path), R_rate_light=np.diag([300.0, 30.0])))
     ctrl = make_vflpc(straight)
     plant = make_plant(straight, 0)
     light_solver = ctrl._light_mode[1]
@@ -187,8 +192,11 @@ def test_light_weights_while_their_plans_keep_the_rate_limit(straight):
 
 
 def test_light_weights_need_the_cruise_weights():
+    assert make_vflpc(dataclasses.replace(load_scenario("carsim_avoidance"), obstacles=()))._light_mode is None
+    light = {"r_rate_light_ground": [300.0, 30.0]}
+    assert vflpc_params(_table({"cost": light}), "ground").R_rate_light[1, 1] == 30.0
     with pytest.raises(ConfigError, match="r_rate_light_ground"):
-        vflpc_params(_table({"cost": {"r_rate_ground": None, "r_rate_threat_ground": None}}), "ground")
+        vflpc_params(_table({"cost": {**light, "r_rate_ground": None, "r_rate_threat_ground": None}}), "ground")
     with pytest.raises(ConfigError, match="r_rate_light_ground"):
         vflpc_params(_table({"cost": {"r_rate_light_ground": [300.0, 0.0]}}), "ground")
 
