@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import socket
 import struct
 import subprocess
@@ -12,6 +13,7 @@ import threading
 import time
 
 import can
+import numpy as np
 
 from loopback import free_port
 
@@ -99,6 +101,66 @@ class BusTap:
         self._stop.set()
         self._thread.join(2.0)
         self.bus.shutdown()
+
+
+def edited_copy(source, dest, replacements) -> None:
+    """``source``'s text with each (old, new) of ``replacements`` made (each old found exactly once:
+    a test fails loudly when the shipped file changes) written to ``dest``."""
+    text = source.read_text()
+    for old, new in replacements:
+        assert text.count(old) == 1, f"{source} changed: {old!r} not found once"
+        text = text.replace(old, new)
+    dest.write_text(text)
+
+
+def ecu_stats(proc) -> dict:
+    """The counters the ECU mock (``vflpcd sitl can-ecu``, a ``processes.Proc``) printed as it ended."""
+    return next(json.loads(line)["ecu_stats"] for line in proc.out if line.startswith('{"ecu_stats"'))
+
+
+class PacedSender:
+    """Sends the rounds of ``rounds()`` (name, [(frame id, data), ...]) on a bus client of its own,
+    at exponential gaps of mean 1 / rate_hz, from its own thread; ``log``: (monotonic time, name) of
+    each round sent. A subclass sets its fields, then calls this ``__init__``, which starts it."""
+
+    def __init__(self, url: str, rate_hz: float, seed: int, name: str) -> None:
+        self.bus = can.Bus(interface="remote", channel=url)
+        self.rate_hz = rate_hz
+        self.rng = np.random.default_rng(seed)
+        self.log: list[tuple[float, str]] = []
+        self.error: BaseException | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self.started = time.monotonic()
+        self._thread.start()
+
+    def rounds(self):
+        raise NotImplementedError
+
+    def _run(self) -> None:
+        next_t = self.started
+        try:
+            for name, frames in self.rounds():
+                if self._stop.is_set():
+                    return
+                for frame_id, data in frames:
+                    self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
+                self.log.append((time.monotonic(), name))
+                next_t += self.rng.exponential(1.0 / self.rate_hz)
+                time.sleep(max(0.0, next_t - time.monotonic()))
+        except BaseException as exc:           # the test reports it
+            self.error = exc
+
+    @property
+    def running(self) -> bool:
+        return self._thread.is_alive()
+
+    def stop(self) -> float:
+        """Stop sending; the time it stopped."""
+        self._stop.set()
+        self._thread.join(2.0)
+        self.bus.shutdown()
+        return time.monotonic()
 
 
 def close_all(sender, tap: BusTap | None, *procs) -> None:

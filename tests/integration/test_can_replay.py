@@ -19,16 +19,14 @@ counter (the ECU's command timeout takes over) or the replay always wins.
 
 from __future__ import annotations
 
-import json
 import struct
-import threading
 import time
 from pathlib import Path
 
 import can
 import numpy as np
 
-from canhub import BusTap, can_hub, close_all
+from canhub import BusTap, PacedSender, can_hub, close_all, ecu_stats, edited_copy
 from drivers.can_codec import VehicleCan
 from processes import Proc, descendants, wait_gone
 from vflpcd.config.scenarios import load_scenario
@@ -46,56 +44,29 @@ DEVIATION_AT_STOP_M = 5.0    # from the route (measured 3.2 m: the avoidance, th
 
 def mission_copy(folder: Path, url: str) -> Path:
     """The shipped mission on the hub at ``url``, telemetry off, logs in folder/logs."""
-    text = MISSION.read_text()
-    for old, new in (('channel = "ws://127.0.0.1:54701/"', f'channel = "{url}"'),
-                     ("[telemetry]\nenabled = true", "[telemetry]\nenabled = false"),
-                     ('dir = "logs"', f'dir = "{folder / "logs"}"')):
-        assert text.count(old) == 1, f"{MISSION} changed: {old!r} not found once"
-        text = text.replace(old, new)
     path = folder / "vehicle_can.toml"
-    path.write_text(text)
+    edited_copy(MISSION, path, (('channel = "ws://127.0.0.1:54701/"', f'channel = "{url}"'),
+                                ("[telemetry]\nenabled = true", "[telemetry]\nenabled = false"),
+                                ('dir = "logs"', f'dir = "{folder / "logs"}"')))
     return path
 
 
-class Replay:
+class Replay(PacedSender):
     """Sends ``frames`` (data bytes of VehicleCmd) in a loop, at exponential gaps of mean 1 / rate_hz."""
 
     def __init__(self, url: str, frames: list[bytes], rate_hz: float, seed: int = 7) -> None:
-        self.bus = can.Bus(interface="remote", channel=url)
-        self.frames, self.rate_hz = frames, rate_hz
-        self.rng = np.random.default_rng(seed)
-        self.sent = 0
-        self.error: BaseException | None = None
-        self._stop = threading.Event()
-        self.started = time.monotonic()
-        self._thread = threading.Thread(target=self._run, name="can-replay", daemon=True)
-        self._thread.start()
+        self.frames = frames
+        super().__init__(url, rate_hz, seed, "can-replay")
 
-    def _run(self) -> None:
-        next_t = self.started
-        try:
-            while not self._stop.is_set():
-                data = self.frames[self.sent % len(self.frames)]
-                self.bus.send(can.Message(arbitration_id=CMD, data=data, is_extended_id=False))
-                self.sent += 1
-                next_t += self.rng.exponential(1.0 / self.rate_hz)
-                time.sleep(max(0.0, next_t - time.monotonic()))
-        except BaseException as exc:
-            self.error = exc
+    def rounds(self):
+        k = 0
+        while True:
+            yield "replay", [(CMD, self.frames[k % len(self.frames)])]
+            k += 1
 
     @property
-    def running(self) -> bool:
-        return self._thread.is_alive()
-
-    def stop(self) -> float:
-        self._stop.set()
-        self._thread.join(2.0)
-        self.bus.shutdown()
-        return time.monotonic()
-
-
-def ecu_stats(proc: Proc) -> dict:
-    return next(json.loads(line)["ecu_stats"] for line in proc.out if line.startswith('{"ecu_stats"'))
+    def sent(self) -> int:
+        return len(self.log)
 
 
 def test_replayed_commands_trip_the_failsafe_and_the_car_stops_near_the_route(tmp_path):

@@ -19,16 +19,14 @@ the mission completes on the road with no failsafe.
 
 from __future__ import annotations
 
-import json
 import struct
-import threading
 import time
 from pathlib import Path
 
 import can
 import numpy as np
 
-from canhub import BusTap, can_hub, close_all
+from canhub import BusTap, PacedSender, can_hub, close_all, ecu_stats, edited_copy
 from drivers.can_codec import VehicleCan
 from drivers.can_secoc import AUTH_ID_OFFSET, Receiver, auth_pdu, load_key
 from processes import Proc
@@ -53,16 +51,13 @@ def short_road(folder: Path) -> Path:
 
 def mission_copy(folder: Path, url: str) -> Path:
     """The shipped authenticated mission on the hub at ``url`` and the short road, telemetry off."""
-    text = MISSION.read_text()
-    for old, new in (('channel = "ws://127.0.0.1:54702/"', f'channel = "{url}"'),
-                     ('auth_key = "../can/demo_secoc.key"', f'auth_key = "{config_dir() / "can" / "demo_secoc.key"}"'),
-                     ('scenario = "carsim_avoidance"', f'scenario = "{short_road(folder)}"'),
-                     ("[telemetry]\nenabled = true", "[telemetry]\nenabled = false"),
-                     ('dir = "logs"', f'dir = "{folder / "logs"}"')):
-        assert text.count(old) == 1, f"{MISSION} changed: {old!r} not found once"
-        text = text.replace(old, new)
     path = folder / "vehicle_can_secoc.toml"
-    path.write_text(text)
+    edited_copy(MISSION, path, (('channel = "ws://127.0.0.1:54702/"', f'channel = "{url}"'),
+                                ('auth_key = "../can/demo_secoc.key"',
+                                 f'auth_key = "{config_dir() / "can" / "demo_secoc.key"}"'),
+                                ('scenario = "carsim_avoidance"', f'scenario = "{short_road(folder)}"'),
+                                ("[telemetry]\nenabled = true", "[telemetry]\nenabled = false"),
+                                ('dir = "logs"', f'dir = "{folder / "logs"}"')))
     return path
 
 
@@ -88,27 +83,20 @@ class Tap(BusTap):
                 if i == frame_id and frames[k + 1][0] == frame_id + AUTH_ID_OFFSET]
 
 
-class Attacker:
+class Attacker(PacedSender):
     """Sends attack frames in rounds, at exponential gaps of mean 1 / rate_hz; counts what it sent by attack."""
 
     def __init__(self, url: str, cmds: list[tuple[bytes, bytes]], ins: list[tuple[bytes, bytes]], rate_hz: float,
                  seed: int = 5) -> None:
-        self.bus = can.Bus(interface="remote", channel=url)
-        self.rng = np.random.default_rng(seed)
-        self.cmds, self.ins, self.rate_hz = cmds, ins, rate_hz
+        self.cmds, self.ins = cmds, ins
         self.codec = VehicleCan()
-        self.log: list[tuple[float, str]] = []          # (monotonic time, attack) of each one sent
-        self.error: BaseException | None = None
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="can-attacker", daemon=True)
-        self.started = time.monotonic()
-        self._thread.start()
+        super().__init__(url, rate_hz, seed, "can-attacker")
 
     def _left(self, counter: int) -> bytes:
         return bytes(self.codec.encode("VehicleCmd", {"AccelCmd": 2.0, "SteerAngleCmd": 0.3, "Enable": 1,
                                                       "AliveCounter": counter % 16}).data)
 
-    def _rounds(self):
+    def rounds(self):
         shuffled = [f for pair in self.cmds for f in ((CMD, pair[0]), (CMD + AUTH_ID_OFFSET, pair[1]))]
         old_fv = time.time_ns() // 1_000_000 - 3000                    # 3 s old
         k = 0
@@ -129,39 +117,12 @@ class Attacker:
                                  (INS_POSITION + AUTH_ID_OFFSET, bytes(self.rng.integers(0, 256, 8, dtype=np.uint8)))]
             yield "ins_replayed", [(INS_POSITION, d), (INS_POSITION + AUTH_ID_OFFSET, a)]
 
-    def _run(self) -> None:
-        next_t = self.started
-        try:
-            for name, frames in self._rounds():
-                if self._stop.is_set():
-                    return
-                for frame_id, data in frames:
-                    self.bus.send(can.Message(arbitration_id=frame_id, data=data, is_extended_id=False))
-                self.log.append((time.monotonic(), name))
-                next_t += self.rng.exponential(1.0 / self.rate_hz)
-                time.sleep(max(0.0, next_t - time.monotonic()))
-        except BaseException as exc:
-            self.error = exc
-
-    @property
-    def running(self) -> bool:
-        return self._thread.is_alive()
-
     def sent(self, until: float = float("inf")) -> dict[str, int]:
         out: dict[str, int] = {}
         for t, name in self.log:
             if t <= until:
                 out[name] = out.get(name, 0) + 1
         return out
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-        self.bus.shutdown()
-
-
-def ecu_stats(proc: Proc) -> dict:
-    return next(json.loads(line)["ecu_stats"] for line in proc.out if line.startswith('{"ecu_stats"'))
 
 
 def test_replayed_forged_and_spoofed_frames_are_rejected_and_counted_and_the_car_keeps_its_road(tmp_path):
