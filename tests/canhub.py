@@ -113,6 +113,16 @@ def edited_copy(source, dest, replacements) -> None:
     dest.write_text(text)
 
 
+def receive_for(bus: can.BusABC, seconds: float) -> list[can.Message]:
+    """Every frame ``bus`` receives in the next ``seconds``."""
+    out, deadline = [], time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        msg = bus.recv(0.01)
+        if msg is not None:
+            out.append(msg)
+    return out
+
+
 def ecu_stats(proc) -> dict:
     """The counters the ECU mock (``vflpcd sitl can-ecu``, a ``processes.Proc``) printed as it ended."""
     return next(json.loads(line)["ecu_stats"] for line in proc.out if line.startswith('{"ecu_stats"'))

@@ -549,8 +549,7 @@ class VFLPC(ControllerBase):
             self.solver.reset()
             self._light = False
         increment = self.rate.problem(problem)
-        v = self._solve_with(self.solver, increment, barrier)
-        return self.rate.deviation(increment.x0, v[0] if v is not None else -self.rate.K_terminal @ increment.x0)
+        return self.rate.deviation(increment.x0, self._solve(increment, barrier, self.rate.K_terminal))
 
     def _keeps_rate(self, problem: HorizonProblem, v: np.ndarray) -> bool:
         """Whether the planned increments v (N, n_u) of u~ move the command u = u_r + u~ by at most

@@ -8,6 +8,7 @@ import cantools
 import numpy as np
 import pytest
 
+from canhub import receive_for
 from drivers.can_bus import BusConfig
 from drivers.can_codec import FRAME_ERRORS, CounterSource, VehicleCan, checksum
 from drivers.can_secoc import AUTH_ERRORS, PENDING, AuthConfig, Sender
@@ -328,7 +329,7 @@ def test_an_authenticated_link_uses_authenticated_frames_only_and_counts_the_oth
 
         await d.enable()
         await d.send(np.array([0.5, 0.0]))
-        got = await asyncio.get_running_loop().run_in_executor(None, lambda: _raw(node, 0.1))
+        got = await asyncio.get_running_loop().run_in_executor(None, lambda: receive_for(node.bus, 0.1))
         got = [m for m in got if m.arbitration_id in (0x100, 0x180)]       # the attacker's frames reached it too
         assert got[0].arbitration_id == 0x100 and [m.arbitration_id for m in got] == [0x100, 0x180] * (len(got) // 2)
         node.publish()
@@ -367,12 +368,3 @@ def test_an_authenticated_link_uses_authenticated_frames_only_and_counts_the_oth
     assert stats["auth_rejected"]["VehicleCmd"] == 1 and stats["bad_frames"]["replayed"] == 2
     assert healthy is None
     assert "another sender's VehicleCmd" in foreign
-
-
-def _raw(node: Node, seconds: float) -> list[can.Message]:
-    out, deadline = [], time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        msg = node.bus.recv(0.01)
-        if msg is not None:
-            out.append(msg)
-    return out

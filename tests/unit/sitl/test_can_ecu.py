@@ -8,6 +8,7 @@ import pytest
 
 from drivers.can_codec import CounterSource, VehicleCan, checksum
 from drivers.can_secoc import PENDING, AuthConfig, Receiver, Sender, auth_pdu
+from canhub import receive_for
 from loopback import wait_for
 from sim.plants import make_plant
 from vflpcd.config.vehicles import BicycleConfig
@@ -45,12 +46,7 @@ class Node:
             time.sleep(0.02)
 
     def collect(self, seconds):
-        frames, end = [], time.monotonic() + seconds
-        while time.monotonic() < end:
-            msg = self.bus.recv(0.01)
-            if msg is not None:
-                frames.append(msg)
-        return frames
+        return receive_for(self.bus, seconds)
 
 
 @pytest.fixture
