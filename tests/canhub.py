@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import contextlib
+from collections import Counter
 import json
 import socket
 import struct
@@ -164,6 +165,10 @@ class PacedSender:
     @property
     def running(self) -> bool:
         return self._thread.is_alive()
+
+    def sent(self, until: float = float("inf")) -> dict[str, int]:
+        """Rounds sent by name, up to the monotonic time ``until``."""
+        return dict(Counter(name for t, name in self.log if t <= until))
 
     def stop(self) -> float:
         """Stop sending; the time it stopped."""

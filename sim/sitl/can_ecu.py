@@ -90,9 +90,9 @@ class CanEcu:
         self.auth = auth
         self._auth_tx = self._auth_rx = None
         if auth is not None:
-            ids = secured_ids(codec.db, LINK_MESSAGES)
+            secured_ids(codec.db, LINK_MESSAGES)      # the DBC has the authentication PDUs (ValueError)
             self._auth_tx = Sender(auth.key)
-            self._auth_rx = Receiver(auth.key, (ids["VehicleCmd"],), self._on_auth_reject,
+            self._auth_rx = Receiver(auth.key, (self._cmd_id,), self._on_auth_reject,
                                      clock_skew_s=auth.clock_skew_s)
         self.status_period = codec.message("VehicleStatus").cycle_time * 1e-3
         self.ins_period = codec.message("InsPosition").cycle_time * 1e-3

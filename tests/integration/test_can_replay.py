@@ -64,10 +64,6 @@ class Replay(PacedSender):
             yield "replay", [(CMD, self.frames[k % len(self.frames)])]
             k += 1
 
-    @property
-    def sent(self) -> int:
-        return len(self.log)
-
 
 def test_replayed_commands_trip_the_failsafe_and_the_car_stops_near_the_route(tmp_path):
     codec = VehicleCan()
@@ -149,4 +145,4 @@ def test_replayed_commands_trip_the_failsafe_and_the_car_stops_near_the_route(tm
     print(f"time_to_failsafe_s={time_to_failsafe:.2f} reason={reason[:60]!r} stop_after_failsafe_s="
           f"{stop_t - t_failsafe:.2f} deviation_at_stop_m={deviation_at_stop:.2f} max_deviation_m={most:.2f} "
           f"ecu_counter_errors={stats['bad_frames']['counter']} ecu_commands_ok={stats['commands_ok']} "
-          f"ecu_timeouts={stats['timeouts']} ecu_takeovers_before_exit={takeovers} replayed={replay.sent}")
+          f"ecu_timeouts={stats['timeouts']} ecu_takeovers_before_exit={takeovers} replayed={len(replay.log)}")

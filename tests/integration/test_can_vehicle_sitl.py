@@ -3,7 +3,6 @@ has no SocketCAN), the ECU mock (``vflpcd sitl can-ecu``) and the daemon (``vflp
 speaking CAN frames encoded by config/can/vehicle.dbc. The socketcan variant runs on vcan0 where
 the kernel has AF_CAN."""
 
-import json
 import time
 from pathlib import Path
 
@@ -11,7 +10,7 @@ import can
 import cantools
 import pytest
 
-from canhub import can_hub
+from canhub import can_hub, ecu_stats
 from drivers.can_bus import af_can_available
 from drivers.can_codec import VehicleCan
 from processes import Proc
@@ -48,10 +47,6 @@ hold = {hold}
 dir = "{folder / 'logs'}"
 """)
     return path
-
-
-def ecu_stats(proc: Proc) -> dict:
-    return next(json.loads(line)["ecu_stats"] for line in proc.out if line.startswith('{"ecu_stats"'))
 
 
 @pytest.fixture

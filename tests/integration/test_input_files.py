@@ -1,4 +1,4 @@
-"""``vflpcd check`` on files that once hurt: an endless device, a FIFO without a writer, a mission
+"""``vflpcd check`` on harmful files: an endless device, a FIFO without a writer, a mission
 nested 5,000 deep, a 100 MB file. Each is exit code 2 and one line naming the file, quickly and in
 little memory (the peak resident size of that process alone, as its parent sees it)."""
 

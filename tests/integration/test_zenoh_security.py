@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 import json
 import shutil
+import socket
 import threading
 import time
 
@@ -256,3 +257,14 @@ def test_a_key_of_another_certificate_is_named_when_the_session_opens(certs, mis
         open_session(mission.telemetry, vehicle_id=mission.vehicle_id, file=mission.file)
     assert err.value.field == "telemetry.tls" and "Zenoh cannot use the certificates" in err.value.message
     assert "\n" not in str(err.value)
+
+
+def test_a_tls_endpoint_in_use_is_named_as_in_use_not_as_a_certificate_problem(certs, mission_file):
+    ours, _ = certs
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        mission = load_mission(secure_mission(mission_file, s.getsockname()[1], ours))
+        with pytest.raises(ConfigError) as err:
+            open_session(mission.telemetry, vehicle_id=mission.vehicle_id, file=mission.file)
+    assert err.value.field == "telemetry.listen" and "already in use" in err.value.message, err.value

@@ -6,13 +6,11 @@ and never a hang."""
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import signal
 import socket
 import tomllib
-import zipfile
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -371,4 +369,3 @@ def test_every_reader_goes_through_inputfile():
             found += [f"{py.relative_to(root)}: {p}" for p in patterns if p in text]
     allowed = {"vflpcd/controllers/compiled.py: .read_bytes("}    # the project's own C source
     assert set(found) <= allowed, sorted(set(found) - allowed)
-    assert inputfile.__doc__ and "MAX_DEPTH" in inputfile.__doc__

@@ -27,6 +27,8 @@ def test_certificates_chain_to_the_ca_with_the_names_asked_for(tmp_path, capsys)
                  "--host", "10.0.0.2"]) == 0
     out = capsys.readouterr().out
     assert "for bench set-ups only" in out and f'ca = "{folder / "ca.pem"}"' in out
+    # the printed set-up uses the certificate's address: a client checks the daemon's host name
+    assert 'listen = ["tls/10.0.0.2:7447"]' in out and "--connect tls/10.0.0.2:7447" in out
     assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUTS)
     for who, cn in (("daemon", "car-7"), ("gcs", "gcs"), ("perception", "perception")):
         assert openssl("verify", "-CAfile", folder / "ca.pem", folder / f"{who}.pem").strip().endswith("OK")

@@ -278,10 +278,10 @@ def cmd_watch(args) -> int:
 def cmd_make_test_ca(args) -> int:
     from vflpcd.app.testca import DEFAULT_HOSTS, make_test_ca, mission_snippet
 
-    folder = make_test_ca(args.dir, daemon_name=args.daemon_name, hosts=tuple(args.host or DEFAULT_HOSTS),
-                          days=args.days)
+    hosts = tuple(args.host or DEFAULT_HOSTS)
+    folder = make_test_ca(args.dir, daemon_name=args.daemon_name, hosts=hosts, days=args.days)
     print(f"wrote a test CA and certificates to {folder} (for bench set-ups only: the keys are not protected)")
-    print(mission_snippet(folder, args.daemon_name))
+    print(mission_snippet(folder, args.daemon_name, hosts))
     return 0
 
 

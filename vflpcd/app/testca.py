@@ -86,22 +86,32 @@ def make_test_ca(folder: str | Path, daemon_name: str = "vflpcd", hosts=DEFAULT_
     return folder
 
 
-def mission_snippet(folder: Path, daemon_name: str = "vflpcd") -> str:
-    """The mission tables and the watch command line that use the files of ``folder``."""
+def mission_snippet(folder: Path, daemon_name: str = "vflpcd", hosts: tuple[str, ...] = DEFAULT_HOSTS) -> str:
+    """The mission tables and the watch command line that use the files of ``folder``, on the first
+    address among the certificate's ``hosts`` (the first host when none is an address): a client
+    checks the daemon's certificate against the host it connects to."""
     d = Path(folder).resolve()
-    return (f'[telemetry]\nlisten = ["tls/127.0.0.1:7447"]\n\n'
+    host = next((h for h in hosts if _is_address(h)), hosts[0])
+    endpoint = f"tls/[{host}]:7447" if ":" in host else f"tls/{host}:7447"
+    return (f'[telemetry]\nlisten = ["{endpoint}"]\n\n'
             f'[telemetry.tls]\nca = "{d / "ca.pem"}"\ncertificate = "{d / "daemon.pem"}"\n'
             f'private_key = "{d / "daemon.key"}"\nmutual = true\n\n'
             f'[telemetry.access]\ntelemetry = ["gcs"]\nperception = ["perception"]\n\n'
-            f"vflpcd watch VEHICLE_ID --connect tls/127.0.0.1:7447 --identity {d / 'gcs.toml'}"
+            f"vflpcd watch VEHICLE_ID --connect {endpoint} --identity {d / 'gcs.toml'}"
             f"   # the daemon's certificate: CN {daemon_name}")
 
 
-def _san(host: str) -> str:
+def _is_address(host) -> bool:
     try:
-        return f"IP:{ipaddress.ip_address(host)}"
+        ipaddress.ip_address(host)
     except ValueError:
-        pass
+        return False
+    return True
+
+
+def _san(host: str) -> str:
+    if _is_address(host):
+        return f"IP:{ipaddress.ip_address(host)}"
     if not isinstance(host, str) or not _HOST.fullmatch(host):
         raise ConfigError("command line", "--host", f"expected a host name or an IP address, got {host!r}")
     return f"DNS:{host}"

@@ -1,25 +1,26 @@
 """Reading the files a user hands the daemon: only regular files, only up to a size limit.
 
 Every reader of a mission, scenario, plant or vehicle file, controller or planner configuration,
-waypoint CSV, model archive, training log or CAN database opens it here. A file is looked at
-(``stat``) before it is opened, opened without blocking (a FIFO never waits for a writer) and
-looked at again (``fstat``) on the descriptor that is then read, and at most ``limit + 1`` bytes
-are read: a device, a FIFO, a directory or an endless stream is refused without reading it.
-Text must decode strictly; TOML and JSON may nest arrays and tables at most ``MAX_DEPTH`` deep.
-Every failure is one :class:`ConfigError` naming the file and what is wrong with it.
+waypoint CSV, model archive, training or flight log, CAN database, CAN key or TLS certificate
+opens it here. A file is looked at (``stat``) before it is opened, opened without blocking (a FIFO
+never waits for a writer) and looked at again (``fstat``) on the descriptor that is then read, and
+at most ``limit + 1`` bytes are read: a device, a FIFO, a directory or an endless stream is refused
+without reading it. Text must decode strictly; TOML and JSON may nest arrays and tables at most
+``MAX_DEPTH`` deep. Every failure is one :class:`ConfigError` naming the file and what is wrong
+with it.
 
 Limits (bytes):
 
-- ``TEXT_MAX_BYTES`` (2 MiB): TOML, JSON, CSV and DBC text. The shipped files are at most a few
-  kB; 2 MiB holds a waypoint CSV of about 100,000 points and keeps the parse of the worst TOML
-  file of that size (small arrays throughout) under about 1.5 s.
+- ``TEXT_MAX_BYTES`` (2 MiB): TOML, JSON, CSV, DBC, key and certificate text. The shipped files
+  are at most a few kB; 2 MiB holds a waypoint CSV of about 100,000 points.
 - ``MODEL_MAX_BYTES`` (64 MiB), the archive on disk and its arrays unpacked: a model archive.
   The shipped ones are about 30 kB; 64 MiB is eight million float64 weights, and the unpacked
   limit bounds the memory a compressed archive can claim.
-- ``DATA_MAX_BYTES`` (1 GiB), on disk and unpacked: one training log (offline training only).
+- ``DATA_MAX_BYTES`` (1 GiB), on disk and unpacked: a training log, and a flight log (about six
+  hours of a 100 Hz mission).
 - ``MAX_DEPTH`` (32): arrays and tables nested in TOML and JSON. The shipped TOML files nest 2
-  deep, the model manifests 6; Python's parsers recurse on nesting and, at the default recursion
-  limit, fail a few hundred levels deep (tomllib) with a RecursionError.
+  deep, a model archive's metadata 5; Python's parsers recurse on nesting and, at the default
+  recursion limit, fail a few hundred levels deep (tomllib) with a RecursionError.
 """
 
 from __future__ import annotations

@@ -234,12 +234,12 @@ def open_session(cfg: TelemetryConfig, *, vehicle_id: str | None = None, file=No
         return zenoh.open(zc)
     except zenoh.ZError as exc:
         text = str(exc)
-        if cfg.tls is not None and ("TLS" in text or "certificate" in text.lower()):
-            raise ConfigError(file, names["tls"], f"Zenoh cannot use the certificates: {_first_line(exc)}") from None
-        if "in use" in text:
+        if "in use" in text:          # first: a TLS listener's message says "TLS" too
             eps = [ep for ep in cfg.listen if ep.rsplit(":", 1)[-1] in text] or list(cfg.listen)
             raise ConfigError(file, names["listen"], f"endpoint {', '.join(eps)} is already in use "
                                                      "(another daemon or program listens there)") from None
+        if cfg.tls is not None and ("TLS" in text or "certificate" in text.lower()):
+            raise ConfigError(file, names["tls"], f"Zenoh cannot use the certificates: {_first_line(exc)}") from None
         if "listener" in text:
             raise ConfigError(file, names["listen"], f"cannot listen: {_first_line(exc)}") from None
         if "connect" in text or "No peer" in text:

@@ -185,8 +185,9 @@ class IdentityFile:
         root = load_table(path)
         tls = TlsConfig.from_table(root, known=frozenset({"daemon"}))
         daemon = root.string("daemon") if root.has("daemon") else None
-        if daemon is not None and check_name(daemon) is not None:
-            raise root.error("daemon", check_name(daemon))
+        problem = check_name(daemon) if daemon is not None else None
+        if problem is not None:
+            raise root.error("daemon", problem)
         return cls(tls, daemon)
 
     def policy(self) -> AccessPolicy | None:

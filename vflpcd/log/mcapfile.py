@@ -127,10 +127,14 @@ class McapFile:
                 pass
 
     def close(self) -> None:
-        """Close the file (pending bytes are not written); idempotent."""
+        """Close the file (pending bytes are not written); idempotent, and silent on a close that
+        fails (the descriptor is released either way; what was committed is on disk)."""
         if self._fd >= 0:
             fd, self._fd = self._fd, -1
-            os.close(fd)
+            try:
+                os.close(fd)
+            except OSError:
+                pass
 
 
 def _pwrite_all(fd: int, data: bytes, offset: int) -> None:

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from vflpcd.log.reader import FlightLog, read_flight_log
+from vflpcd.log.summary import log_stop_line
 
 
 def positions(log: FlightLog) -> np.ndarray:
@@ -44,7 +45,7 @@ def plot_flight_log(log: FlightLog, out: str | Path) -> Path:
     duration = float(log.t[-1] - log.t[0]) if len(log) else 0.0
     fig.suptitle(f"{h.vehicle_id} ({h.platform}) / {h.controller} at {h.rate_hz:g} Hz: {len(log)} ticks, "
                  f"{duration:.1f} s, {int(log.overrun.sum())} overruns"
-                 + (f", log stopped early ({log.stop_reason or 'the writer was killed'})" if log.truncated else ""))
+                 + (f", log {line}" if (line := log_stop_line(log)) else ""))
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out

@@ -242,8 +242,7 @@ class FlightRecorder:
             if time.monotonic() >= next_flush:
                 next_flush = time.monotonic() + self.flush_period_s
                 self._commit()
-        if not self._failed:
-            self._commit(final=True)
+        self._commit(final=True)
         self._file.close()
 
     def _write(self, rec: TickRecord | Event) -> None:
@@ -291,8 +290,7 @@ class FlightRecorder:
         self._stop_reason = write_error_reason(exc)
         now = time.monotonic_ns()
         t = self._last_clock[0] + (now - self._last_clock[1]) * 1e-9 if self._last_clock else 0.0
-        code = errno.errorcode.get(exc.errno or 0, "")
-        ev = Event(t=t, stamp_ns=now, kind="log_stopped", detail={"reason": self._stop_reason, "errno": code})
+        ev = Event(t=t, stamp_ns=now, kind="log_stopped", detail={"reason": self._stop_reason, "errno": _errno_name(exc)})
         try:
             self._writer.add_message(self._channels[Event], now, _encode(ev), now)
             self._writer.flush()
@@ -317,7 +315,7 @@ class FlightRecorder:
 def write_error_reason(exc: OSError) -> str:
     """Why a write failed, in words: "disk full (ENOSPC)", "disk quota exceeded (EDQUOT)" or
     "write error (EIO: Input/output error)"."""
-    code = errno.errorcode.get(exc.errno or 0)
+    code = _errno_name(exc)
     if exc.errno == errno.ENOSPC:
         return "disk full (ENOSPC)"
     if exc.errno == errno.EDQUOT:
@@ -327,3 +325,8 @@ def write_error_reason(exc: OSError) -> str:
 
 def _encode(rec: Any) -> bytes:
     return json_bytes(rec.to_json())
+
+
+def _errno_name(exc: OSError) -> str:
+    """The error's symbolic name ("ENOSPC"), "" when it has none."""
+    return errno.errorcode.get(exc.errno or 0, "")

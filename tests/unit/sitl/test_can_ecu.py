@@ -248,19 +248,21 @@ def test_authenticated_ecu_follows_only_fresh_authenticated_commands(rig):
                                             is_extended_id=False)],
                "old_freshness": [left, auth_pdu(0x100, old_fv, KEY, bytes(left.data))],
                "plain": [left] * 8}
-    steer = []
+    steer = []                 # the steering the ECU holds as its command (an obeyed attack: 0.3 at once)
     for name, frames in attacks.items():
         for k in range(0, len(frames), 2):
             t.command(accel=0.5, steer=0.0)
             for f in frames[k:k + 2]:
                 t.bus.send(f)
-            steer.append(ecu.plant.applied_control[1])
             time.sleep(0.01)
+            steer.append(ecu._command[1])
         t.stream(0.05, accel=0.5, steer=0.0)
     t.stream(0.05, accel=0.5, steer=0.0)
     stats = ecu.stats()
     bad = stats["bad_frames"]
-    assert max(abs(np.array(steer))) < 0.01 and ecu.mode == "automatic", (max(steer), ecu.mode)
+    steer = np.abs(np.array(steer))
+    assert steer.max() < 0.01 and abs(ecu.plant.applied_control[1]) < 0.01 and ecu.mode == "automatic", \
+        (steer.max(), ecu.mode)
     # the forged pair's and the plain frames wait for a PDU until newer ones push them out
     assert bad["replayed"] >= len(recorded) and bad["forged"] >= 1 and bad["unauthenticated"] >= 9 - PENDING, bad
     assert bad["counter"] == 0 and stats["counter_errors"] == 0 and stats["timeouts"] == 0, stats
