@@ -12,6 +12,7 @@ from vflpcd.config.koopman_file import load_koopman
 from vflpcd.core.dynamics.sparse_gp import SEHyper
 from vflpcd.core.guidance.planner import GuidancePlanner
 from vflpcd.core.guidance.planner3d import GuidancePlanner3D
+from vflpcd.core.guidance.tighten import Body
 from vflpcd.config.params import vflpc_params
 from vflpcd.core.vflpc import VFLPC, VFLPCParams
 from vflpcd.controllers.loops import ebrhrl_loop
@@ -20,6 +21,13 @@ from vflpcd.base.tomlread import load_table
 from vflpcd.config.vehicles import state_names
 
 MODELS = {"ground": "dynamic_bicycle.npz", "aerial": "quadrotor.npz"}
+BODY_DISCS = 6   # covering discs of the car body for the tight path (6: 8 cm over the sides of the SUV)
+
+
+def planner_body(footprint) -> Body:
+    """The body the guidance's tight path keeps clear: the footprint's covering discs."""
+    f = footprint.with_discs(BODY_DISCS)
+    return Body(np.asarray(f.offsets, float), float(f.radius))
 
 
 def load_params(platform: str, path: str | Path | None = None) -> VFLPCParams:
@@ -80,7 +88,8 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
     period = model.dt if period is None else float(period)
     planner_cls = GuidancePlanner if scenario.dim == 2 else GuidancePlanner3D
     planner = planner_cls(scenario.path, scenario.guidance, scenario.v_desired, scenario.a_lat_max,
-                          scenario.footprint.radius, model.dt, kappa_limit=curvature_limit(scenario))
+                          scenario.footprint.radius, model.dt, kappa_limit=curvature_limit(scenario),
+                          body=planner_body(scenario.footprint))
     if compensation and not np.isclose(scenario.control_period, model.dt):
         raise ValueError(f"GP compensation learns one-model-step transitions: scenario {scenario.name!r} runs "
                          f"every {scenario.control_period} s, the model steps {model.dt} s")

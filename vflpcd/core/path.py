@@ -233,3 +233,14 @@ def nearest_on_polyline(p: np.ndarray, xy: np.ndarray) -> tuple[float, int]:
     d2 = (e * e).sum(axis=1)
     i = int(np.argmin(d2))
     return float(np.sqrt(d2[i])), i
+
+
+def feet_on_polyline(pts: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """The nearest point of the polyline through xy (M, d) to each of pts (K, d): (K, d)."""
+    pts, xy = np.asarray(pts, float), np.asarray(xy, float)
+    a, ab = xy[:-1], np.diff(xy, axis=0)
+    w = np.maximum(np.einsum("md,md->m", ab, ab), 1e-12)
+    h = np.clip(np.einsum("kmd,md->km", pts[:, None, :] - a[None], ab) / w, 0.0, 1.0)
+    feet = a[None] + h[..., None] * ab[None]
+    i = np.argmin(((feet - pts[:, None, :]) ** 2).sum(axis=2), axis=1)
+    return feet[np.arange(len(pts)), i]

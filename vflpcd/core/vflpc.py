@@ -81,8 +81,17 @@ def plan_job(planner, job: ReplanJob) -> PlanResult:
     """Run a replan (worker side; raises GuidanceError when no plan exists). A plan beyond the
     robot's curvature limit is planned again by the planner's ``recovery`` (narrower margins); the
     recovery plan is taken when it is drivable, else the first plan stands (and the safety gate
-    refuses it)."""
-    result = _plan_once(planner, job)
+    refuses it). A robot inside an obstacle's repulsive region (a tight path passes closer than the
+    field's margin) is planned for by the recovery at once."""
+    try:
+        result = _plan_once(planner, job)
+    except GuidanceError:       # the robot is inside a repulsive region (a tight path passes closer than
+        narrow = planner.recovery()     # the field's margin): planned with the recovery's narrow margins
+        if narrow is None:
+            raise
+        log.info("event=recovery_plan t=%.2f margin=%.2f reason=start inside a repulsive region", job.t,
+                 narrow.params.safety_margin)
+        return _plan_once(narrow, job)
     if planner.drivable(result.plan):
         return result
     narrow = planner.recovery()

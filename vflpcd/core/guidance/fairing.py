@@ -66,9 +66,11 @@ def resample(xy: np.ndarray, times: np.ndarray, h: float) -> tuple[np.ndarray, n
     return pts, np.interp(si, s, times)
 
 
-def half_planes(x: np.ndarray, t: np.ndarray, regions: Sequence[Region]) -> tuple[np.ndarray, np.ndarray]:
+def half_planes(x: np.ndarray, t: np.ndarray, regions: Sequence[Region],
+                level: float = CLEAR_LEVEL) -> tuple[np.ndarray, np.ndarray]:
     """Per point the supporting half-plane n_k' x >= b_k of the nearest-reaching repulsive region
-    among those whose reactive region holds the point (n_k = 0, b_k = -inf: free)."""
+    among those whose reactive region holds the point (n_k = 0, b_k = -inf: free), touching the
+    level varphi_i = level c_i (n_k unit: b_k - n_k' x_k is in metres)."""
     n = np.zeros_like(x)
     b = np.full(len(x), -np.inf)
     worst = np.full(len(x), np.inf)
@@ -79,9 +81,9 @@ def half_planes(x: np.ndarray, t: np.ndarray, regions: Sequence[Region]) -> tupl
         if near.size == 0:
             continue
         q = x[near]
-        for _ in range(6):  # Newton along the gradient to varphi_i = CLEAR_LEVEL c_i
+        for _ in range(6):  # Newton along the gradient to varphi_i = level c_i
             vq, gq = region.value_grad(q, t[near])
-            q = q + ((CLEAR_LEVEL * c - vq) / np.maximum(np.einsum("ij,ij->i", gq, gq), 1e-12))[:, None] * gq
+            q = q + ((level * c - vq) / np.maximum(np.einsum("ij,ij->i", gq, gq), 1e-12))[:, None] * gq
         _, gq = region.value_grad(q, t[near])
         nq = gq / np.maximum(np.linalg.norm(gq, axis=1, keepdims=True), 1e-12)
         n[near], b[near] = nq, np.einsum("ij,ij->i", nq, q)
@@ -116,10 +118,22 @@ def _banded_solve(ab: np.ndarray, f: np.ndarray) -> np.ndarray:
     return x
 
 
-def _solve_convex(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, x0: np.ndarray,
-                  pin_end: bool, active0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """min eps |x - r|^2 + |D2 x|^2 subject to n_k' x_k >= b_k, with the first two points (and with
-    pin_end the last) pinned, by an active set: each round solves the banded normal equations with
+def bending(g: np.ndarray) -> np.ndarray:
+    """D2' D2 g for points g (K, d): the bending energy's gradient (half of it) at g."""
+    y = g[:-2] - 2.0 * g[1:-1] + g[2:]
+    out = np.zeros_like(g)
+    out[:-2] += y
+    out[1:-1] -= 2.0 * y
+    out[2:] += y
+    return out
+
+
+def solve_active_set(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, x0: np.ndarray,
+                     pin_end: bool, active0: np.ndarray | None = None,
+                     shape: np.ndarray | None = None, pins: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """min eps |x - r|^2 + |D2 (x - g)|^2 (g = ``shape``, default 0: the bending of x itself; a path g
+    makes it the bending of x's offset from g) subject to n_k' x_k >= b_k, with the first two points (and with
+    pin_end the last) pinned (where ``pins`` (K, d) has them, default r), by an active set: each round solves the banded normal equations with
     the active half-planes (and the pins) held by a stiff spring (PENALTY), then adds every violated
     half-plane, or else releases the one that the spring holds from outside the most (a negative
     multiplier); it ends when neither exists (x is then the minimiser to ~1e-7 m). ``active0``: the
@@ -129,10 +143,12 @@ def _solve_convex(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, x0: n
     u = 2 * d + 1
     base = _hessian_bands(K, d, eps)
     f0 = eps * r.ravel()
+    if shape is not None:
+        f0 += bending(shape).ravel()
     pinned = [0, 1, K - 1] if pin_end else [0, 1]
     cols = (np.array(pinned)[:, None] * d + np.arange(d)).ravel()
     base[u, cols] += PENALTY
-    f0[cols] += PENALTY * r[pinned].ravel()
+    f0[cols] += PENALTY * (r if pins is None else pins)[pinned].ravel()
     constrained = np.isfinite(b)
     constrained[pinned] = False
     active = constrained & (np.einsum("ij,ij->i", n, x0) < b)
@@ -182,7 +198,7 @@ def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequ
         x = r
         for _ in range(OUTER_ROUNDS):
             n, b = half_planes(x, t, regions)
-            x, active = _solve_convex(r, eps, n, b, x, pin_end, active)
+            x, active = solve_active_set(r, eps, n, b, x, pin_end, active)
         clear = all(np.all(r.value_grad(x, t)[0][2:-2] > r.c) for r in regions)
         kappa = np.max(menger_curvature(x))
         if clear and kappa < best_kappa:

@@ -38,10 +38,11 @@ from vflpcd.core.guidance.field import ActualTerm, GuidanceField, VirtualTerm
 from vflpcd.core.guidance.grid import FieldGrid, Integration, integrate
 from vflpcd.core.guidance.implicit import E, GraphPath, GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.params import GuidanceParams
-from vflpcd.core.guidance.speed import plan_speed, smooth_path, step_times
+from vflpcd.core.guidance.speed import arrival_times, plan_speed, smooth_path, step_times
+from vflpcd.core.guidance.tighten import Body, Keepout, tighten_path
 from vflpcd.core.guidance.trajectory import Trajectory, timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
-from vflpcd.core.path import ReferencePath, nearest_on_polyline
+from vflpcd.core.path import ReferencePath, feet_on_polyline, nearest_on_polyline
 from vflpcd.core.safety.monitors import PlanLimits, check_plan
 
 VIRTUAL_LEAD = np.radians(30.0)  # heading change the virtual obstacle gives before R_actl
@@ -72,6 +73,7 @@ class Prepared:
     s_end: float
     x_end: float
     ends_path: bool
+    statics: tuple[ObstacleState, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -99,7 +101,8 @@ class PlannerBase:
     dim = 2
 
     def __init__(self, path: ReferencePath, params: GuidanceParams, v_desired: float, a_lat_max: float,
-                 body_radius: float, control_period: float, kappa_limit: float = np.inf) -> None:
+                 body_radius: float, control_period: float, kappa_limit: float = np.inf,
+                 body: Body | None = None) -> None:
         if path.dim != self.dim:
             raise GuidanceError(f"{type(self).__name__} needs a {self.dim}-D path, got a {path.dim}-D one")
         for name, value in (("v_desired", v_desired), ("a_lat_max", a_lat_max), ("body_radius", body_radius),
@@ -111,6 +114,7 @@ class PlannerBase:
         if not kappa_limit > 0:
             raise GuidanceError(f"kappa_limit must be positive (inf: none), got {kappa_limit}")
         self.body_radius, self.dt = body_radius, control_period
+        self.body = body if body is not None else Body(np.zeros(1), float(body_radius))
         self.kappa_limit = float(kappa_limit)
         self.kappa_max = params.curvature_use * kappa_limit
 
@@ -134,7 +138,7 @@ class PlannerBase:
                          mover_margin_time=0.0, reactive_margin=min(p.reactive_margin, p.recovery_reactive_margin),
                          reactive_per_speed=0.0)
         return type(self)(self.path, narrow, self.v_desired, self.a_lat_max, self.body_radius, self.dt,
-                          kappa_limit=self.kappa_limit)
+                          kappa_limit=self.kappa_limit, body=self.body)
 
     def margin(self, o: ObstacleState) -> float:
         """The clearance kept beyond the body radius from obstacle o: ``safety_margin``, plus
@@ -194,8 +198,39 @@ class PlannerBase:
                heading: np.ndarray | None = None, pin_end: bool = False) -> np.ndarray:
         """xy (K, d) with its curvature brought within kappa_max around the terms' repulsive regions,
         leaving the start along ``heading`` (d,) when given, ending where it ends with ``pin_end``."""
-        regions = [Region(partial(_value_grad_at_times, term.implicit), term.implicit.c) for term in terms]
-        return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, regions, heading, pin_end)
+        return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, _regions(terms), heading, pin_end)
+
+    def tight_clearance(self, o: ObstacleState) -> float:
+        """The clearance the tight path keeps between the body's discs and o's shape: ``tight_margin``
+        plus the speed and motion terms of ``margin``."""
+        p = self.params
+        return p.tight_margin + self.margin(o) - p.safety_margin
+
+    def tightened(self, prepared: Prepared, field: GuidanceField, xy: np.ndarray, s: np.ndarray, v: np.ndarray,
+                  t0: float, v0: float, heading: np.ndarray | None, goal: bool):
+        """The speed-planned path xy (arc lengths s, speeds v, from t0 at v0) pulled onto the
+        reference path as far as the body's clearance to the stretch's static obstacles
+        (``tight_clearance``) and the movers' repulsive regions let it (``tighten.py``, stiffness
+        ``tight_length``), and speed-planned again: (xy, s, kappa, v). None when that is 0, when no
+        tight path exists, or when the re-timed tight path would meet a mover as a path to follow does
+        (``FOLLOW_SLACK``: arriving earlier on a shorter path changes where the movers are met). A stretch without obstacles keeps the field's path
+        (it lies on the reference path already)."""
+        p = self.params
+        if p.tight_length <= 0.0 or not (prepared.statics or field.movers):
+            return None
+        stretch = self.path.point_at(np.arange(prepared.s0 - 5.0, prepared.s_end + 5.0, 0.5))
+        keepouts = [Keepout(o, self.tight_clearance(o)) for o in prepared.statics]
+        times = t0 + arrival_times(s, v)
+        times[~np.isfinite(times)] = np.max(times[np.isfinite(times)])     # beyond a stop: when it is reached
+        out = tighten_path(xy, times, partial(feet_on_polyline, xy=stretch), self.kappa_max, self.body, keepouts,
+                           _regions(field.movers), p.tight_length, heading, goal)
+        if out is None:
+            return None
+        s, kappa, v = plan_speed(out[0], self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
+                                 v_end=0.0 if goal else None)
+        if field.movers and self.meets_mover(field.movers, timed_trajectory(out[0], s, v, t0, self.dt), FOLLOW_SLACK):
+            return None
+        return out[0], s, kappa, v
 
     @staticmethod
     def _values(o: ObstacleImplicit, xy: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -246,6 +281,11 @@ class PlannerBase:
             if not self.meets_mover(movers, slower[3]):
                 return slower
         return None
+
+
+def _regions(terms) -> list[Region]:
+    """The fairing's view of the terms' repulsive regions (moving obstacles at the points' times)."""
+    return [Region(partial(_value_grad_at_times, term.implicit), term.implicit.c) for term in terms]
 
 
 def _stops(v: np.ndarray) -> bool:
@@ -373,7 +413,8 @@ class GuidancePlanner(PlannerBase):
             self.check_clear(self.path.point_at(self.path.length), terms.values(), 0.0, "goal")
         grid = FieldGrid.build(field, (lo[0] - pad, hi[0] + pad, lo[1] - pad, hi[1] + pad), p.grid_resolution)
         x_end = float(graph.progress(self.path.point_at(s_end)[None, :])[0]) - (p.beta if ends_path else 0.0)
-        return Prepared(field=field, grid=grid, s0=s0, s_end=s_end, x_end=x_end, ends_path=ends_path)
+        return Prepared(field=field, grid=grid, s0=s0, s_end=s_end, x_end=x_end, ends_path=ends_path,
+                        statics=tuple(o for o in statics if o.id in terms))
 
     def _integrate_and_time(self, field, prepared: Prepared, start, t0, v0, heading, steps):
         """Eq. (xi_r), smoothing and speed planning: (integration, xy, s, kappa, v)."""
@@ -408,6 +449,11 @@ class GuidancePlanner(PlannerBase):
             slower = self.followed(field.movers, xy, t0, v0, _stops(v))
             if slower is not None:
                 s, kappa, v, trajectory = slower
+        else:       # a path the field found to pass: as tight as the clearances let it
+            tight = self.tightened(prepared, field, xy, s, v, t0, v0, h, prepared.ends_path and res.reached)
+            if tight is not None:
+                xy, s, kappa, v = tight
+                trajectory = timed_trajectory(xy, s, v, t0, self.dt)
         return GuidancePlan(trajectory=trajectory, xy=xy, s=s, kappa=kappa, v=v, raw=res.xy,
                             reached=res.reached, inherited=res.inherited, field=field, gammas=res.gammas,
                             virtual_off=res.virtual_off)

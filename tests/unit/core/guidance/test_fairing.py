@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vflpcd.core.guidance.fairing import SPACING, Region, _solve_convex, fair_path, half_planes
+from vflpcd.core.guidance.fairing import SPACING, Region, solve_active_set, fair_path, half_planes
 from vflpcd.core.guidance.implicit import ObstacleImplicit
 from vflpcd.core.guidance.speed import menger_curvature
 from vflpcd.core.shapes import Circle
@@ -90,7 +90,7 @@ def test_the_convex_step_is_the_exact_minimiser():
     n, b = half_planes(r, np.zeros(41), _values([o]))
     assert np.isfinite(b).sum() > 5
     eps = (SPACING / 4.0) ** 4
-    x, _ = _solve_convex(r, eps, n, b, r, pin_end=True)
+    x, _ = solve_active_set(r, eps, n, b, r, pin_end=True)
     K = len(r)
     D = np.diff(np.eye(K), 2, axis=0)
     H = np.kron(D.T @ D + eps * np.eye(K), np.eye(2))
@@ -124,8 +124,8 @@ def test_a_warm_active_set_gives_the_same_minimiser():
     r = np.column_stack([np.linspace(0, 10, 41), np.zeros(41)])
     n, b = half_planes(r, np.zeros(41), _values([o]))
     eps = (SPACING / 4.0) ** 4
-    cold, active = _solve_convex(r, eps, n, b, r, pin_end=True)
-    warm, _ = _solve_convex(r, eps, n, b, r, pin_end=True, active0=active | np.isfinite(b))
+    cold, active = solve_active_set(r, eps, n, b, r, pin_end=True)
+    warm, _ = solve_active_set(r, eps, n, b, r, pin_end=True, active0=active | np.isfinite(b))
     assert np.max(np.abs(warm - cold)) < 1e-6
 
 

@@ -1,0 +1,102 @@
+"""The tight path (vflpcd/core/guidance/tighten.py): as close to the reference path as the body's
+clearance lets it, never closer, and the field's own path where no tight path exists."""
+
+from dataclasses import replace
+from functools import partial
+
+import numpy as np
+
+from vflpcd.config.scenarios import default_guidance
+from vflpcd.core.guidance.fairing import resample
+from vflpcd.core.guidance.planner import GuidancePlanner, _regions
+from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE, Body, Keepout, disc_gaps, tighten_path
+from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.path import ReferencePath, feet_on_polyline
+from vflpcd.core.shapes import Box, Circle
+
+CAR = Body(offsets=np.array([-1.2, 0.0, 1.2]), radius=1.1)
+
+
+def obstacle(oid, shape, x, y, velocity=(0.0, 0.0)):
+    return ObstacleState(id=oid, shape=shape, center=np.array([x, y]), yaw=0.0, velocity=np.array(velocity, float),
+                         stamp=0.0)
+
+
+def planner(params, body=CAR, **changes):
+    path = ReferencePath.line([0.0, 0.0], [80.0, 0.0])
+    return GuidancePlanner(path, replace(params, **changes), 6.0, 3.0, body.radius, 0.05, kappa_limit=0.2, body=body)
+
+
+def test_a_parked_car_is_passed_as_close_as_the_clearance_lets_the_body():
+    """A box on the road's right edge: the field's path passes 0.8-1.2 m wider than the body needs
+    (its repulsive region is a conservative fit of the grown box, plus the reactive band); the tight
+    path keeps exactly the clearance from the box with every covering disc, and swings out less."""
+    params = default_guidance()
+    box = obstacle("parked", Box(4.6, 1.9), 40.0, -0.6)
+    wide = planner(params, tight_length=0.0)
+    tight = planner(params)
+    plans = [p.plan(p.prepare(0.0, [box]), np.zeros(2), 0.0, 6.0, heading=0.0) for p in (wide, tight)]
+    peak = [np.max(np.abs(p.xy[:, 1])) for p in plans]
+    assert peak[1] < peak[0] - 0.4, peak
+    gaps = disc_gaps(plans[1].xy, CAR, [Keepout(box, tight.tight_clearance(box))])
+    assert np.min(gaps) > -CLEAR_TOLERANCE
+    assert np.min(gaps) < 0.05      # it does touch the clearance: no wider than needed
+    assert np.max(plans[1].kappa) <= tight.kappa_max
+
+
+def test_no_tight_path_within_the_curvature_limit_leaves_the_fields_path():
+    """With a curvature limit no detour can keep, there is no tight path (None), and the planner's
+    plan is the field's."""
+    params = default_guidance()
+    box = obstacle("parked", Box(4.6, 1.9), 40.0, -0.6)
+    p = planner(params)
+    prepared = p.prepare(0.0, [box])
+    field_plan = planner(params, tight_length=0.0).plan(prepared, np.zeros(2), 0.0, 6.0, heading=0.0)
+    times = np.linspace(0.0, 10.0, len(field_plan.xy))
+    road = partial(feet_on_polyline, xy=p.path.point_at(np.arange(0.0, 80.0, 0.5)))
+    keep = [Keepout(box, 0.4)]
+    assert tighten_path(field_plan.xy, times, road, 1e-4, CAR, keep, [], 6.0, np.array([1.0, 0.0])) is None
+    assert tighten_path(field_plan.xy, times, road, 0.2, CAR, keep, [], 6.0, np.array([1.0, 0.0])) is not None
+
+
+def test_beside_a_mover_the_fields_path_stays():
+    """A slow car ahead in the lane: where the field's path is in the mover's reactive region at the
+    time it is reached, the tight path keeps the field's points (the room to pass it); before the
+    mover's region it is pulled back to the road like any other."""
+    params = default_guidance()
+    p = planner(params)
+    slow = obstacle("slow", Box(4.5, 1.9), 25.0, 0.0, velocity=(2.0, 0.0))
+    prepared = p.prepare(0.0, [])
+    plan = planner(params, tight_length=0.0).plan(prepared, np.zeros(2), 0.0, 6.0, [slow], heading=0.0)
+    term = p.actual_term(p.implicit(slow), 0.0)
+    times = np.interp(np.linspace(0, 1, len(plan.xy)), np.linspace(0, 1, len(plan.trajectory.t)), plan.trajectory.t)
+    road = partial(feet_on_polyline, xy=p.path.point_at(np.arange(0.0, 80.0, 0.5)))
+    out = tighten_path(plan.xy, times, road, p.kappa_max, CAR, [], _regions([term]), 6.0, np.array([1.0, 0.0]))
+    assert out is not None
+    x, t = out
+    r, _ = resample(plan.xy, times, 0.25)
+    beside = term.implicit.value(x - (t[:, None] - term.implicit.stamp) * term.implicit.velocity,
+                                 term.implicit.stamp) < 0.0
+    assert np.any(beside)
+    assert np.max(np.abs(x[beside, 1])) > 0.8 * np.max(np.abs(r[:, 1]))    # still out beside the mover
+    assert np.all(term.implicit.value(x - (t[:, None] - term.implicit.stamp) * term.implicit.velocity,
+                                      term.implicit.stamp)[2:] > term.implicit.c)
+
+
+def test_the_tight_path_is_never_closer_than_a_field_path_that_starts_close():
+    """A robot that came closer than the tight path's clearance (a recovery plan's field keeps 0.1 m
+    beyond the body, the tight path 0.4 m; the robot starts 0.14 m inside the latter): the tight path
+    from it comes no closer to the post than the field's path does."""
+    params = default_guidance()
+    body = Body(np.zeros(1), 1.0)
+    post = obstacle("post", Circle(0.3), 5.0, -1.2)
+    start = np.array([4.0, 0.0])
+    plans = []
+    for length in (0.0, 6.0):
+        p = planner(params, body=body, safety_margin=0.1, tight_length=length)
+        plans.append(p.plan(p.prepare(0.0, [post]), start, 0.0, 3.0, heading=0.0))
+    keep = [Keepout(post, p.tight_clearance(post))]
+    assert disc_gaps(np.vstack([start, start + [0.25, 0.0], start + [0.5, 0.0]]), body, keep)[0] < 0.0
+    field_gap, tight_gap = (disc_gaps(q.xy, body, keep) for q in plans)
+    assert np.min(tight_gap) > np.min(field_gap) - CLEAR_TOLERANCE
+    assert tight_gap[-1] > 0.0
