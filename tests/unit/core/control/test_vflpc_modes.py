@@ -5,6 +5,8 @@ recovery replan with narrower margins when the first plan is beyond the curvatur
 import dataclasses
 
 import numpy as np
+
+from vflpcd.core.guidance.implicit import GuidanceError
 import pytest
 
 from vflpcd.base.errors import ConfigError
@@ -121,6 +123,7 @@ def test_margins_scale_with_speed_and_the_obstacles_motion(straight):
 
 def test_an_undrivable_plan_is_planned_again_with_narrow_margins(straight, monkeypatch):
     ctrl = make_vflpc(straight)
+    ctrl.planner.params = dataclasses.replace(ctrl.planner.params, tight_length=0.0)   # the field's own paths
     x0 = make_plant(straight, 0).state
     barrel = ObstacleState("barrel", Circle(0.6), np.array([30.0, 0.5]), 0.0, np.zeros(2), 0.0)
     ctrl.step(x0, 0.0, [barrel])
@@ -139,6 +142,20 @@ def test_an_undrivable_plan_is_planned_again_with_narrow_margins(straight, monke
     np.testing.assert_array_equal(result.plan.xy, narrow.xy)                   # the recovery plan is taken
     monkeypatch.setattr(PlannerBase, "drivable", lambda self, plan: False)      # neither is: the first stands
     np.testing.assert_array_equal(plan_job(ctrl.planner, job).plan.xy, full.xy)
+
+
+def test_a_robot_inside_a_repulsive_region_is_planned_for_by_the_recovery(straight):
+    """A tight path passes closer than the field's margin: a replan from there (the robot inside the
+    obstacle's repulsive region Q) is planned with the recovery's narrow margins, not refused."""
+    ctrl = make_vflpc(straight)
+    x0 = make_plant(straight, 0).state
+    barrel = ObstacleState("barrel", Circle(0.6), np.array([30.0, 2.0]), 0.0, np.zeros(2), 0.0)
+    ctrl.step(x0, 0.0, [barrel])
+    job = dataclasses.replace(ctrl._fresh_job(0.0), pos=np.array([30.0, 0.0]), s=30.0)
+    with pytest.raises(GuidanceError, match="covers the start"):
+        _plan_once(ctrl.planner, job)
+    result = plan_job(ctrl.planner, job)
+    assert np.linalg.norm(result.plan.xy[0] - job.pos) < 1e-9
 
 
 def test_the_refits_hyperparameter_bounds_come_from_the_config(straight):

@@ -83,20 +83,19 @@ def test_beside_a_mover_the_fields_path_stays():
                                       term.implicit.stamp)[2:] > term.implicit.c)
 
 
-def test_the_tight_path_is_never_closer_than_a_field_path_that_starts_close():
-    """A robot that came closer than the tight path's clearance (a recovery plan's field keeps 0.1 m
-    beyond the body, the tight path 0.4 m; the robot starts 0.14 m inside the latter): the tight path
-    from it comes no closer to the post than the field's path does."""
-    params = default_guidance()
+def test_the_tight_path_is_never_closer_than_a_field_path_that_comes_close():
+    """Where the field's path comes closer than the clearance (it starts at a robot that drifted
+    close to a post), the tight path comes no closer than it does, and keeps the clearance elsewhere."""
     body = Body(np.zeros(1), 1.0)
-    post = obstacle("post", Circle(0.3), 5.0, -1.2)
-    start = np.array([4.0, 0.0])
-    plans = []
-    for length in (0.0, 6.0):
-        p = planner(params, body=body, safety_margin=0.1, tight_length=length)
-        plans.append(p.plan(p.prepare(0.0, [post]), start, 0.0, 3.0, heading=0.0))
-    keep = [Keepout(post, p.tight_clearance(post))]
-    assert disc_gaps(np.vstack([start, start + [0.25, 0.0], start + [0.5, 0.0]]), body, keep)[0] < 0.0
-    field_gap, tight_gap = (disc_gaps(q.xy, body, keep) for q in plans)
+    post = obstacle("post", Circle(0.3), 10.0, -1.2)
+    keep = [Keepout(post, 0.4)]
+    xy = np.column_stack([np.linspace(0.0, 30.0, 121), np.zeros(121)])      # the field's path: on the road
+    road = partial(feet_on_polyline, xy=np.array([[0.0, 0.0], [40.0, 0.0]]))
+    field_gap = disc_gaps(xy, body, keep)
+    assert np.min(field_gap) < -0.4
+    out = tighten_path(xy, np.linspace(0.0, 10.0, 121), road, 0.2, body, keep, [], 6.0, np.array([1.0, 0.0]))
+    assert out is not None
+    tight_gap = disc_gaps(out[0], body, keep)
     assert np.min(tight_gap) > np.min(field_gap) - CLEAR_TOLERANCE
-    assert tight_gap[-1] > 0.0
+    far = np.abs(out[0][:, 0] - 10.0) > 4.0
+    assert np.all(tight_gap[far] > -CLEAR_TOLERANCE)
