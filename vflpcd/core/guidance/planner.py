@@ -39,7 +39,7 @@ from vflpcd.core.guidance.grid import FieldGrid, Integration, integrate
 from vflpcd.core.guidance.implicit import E, GraphPath, GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.params import GuidanceParams
 from vflpcd.core.guidance.speed import arrival_times, plan_speed, smooth_path, step_times
-from vflpcd.core.guidance.tighten import Body, Keepout, tighten_path
+from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE, Body, Keepout, disc_gaps, tighten_path
 from vflpcd.core.guidance.trajectory import Trajectory, timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath, feet_on_polyline, nearest_on_polyline
@@ -206,31 +206,42 @@ class PlannerBase:
         p = self.params
         return p.tight_margin + self.margin(o) - p.safety_margin
 
-    def tightened(self, prepared: Prepared, field: GuidanceField, xy: np.ndarray, s: np.ndarray, v: np.ndarray,
-                  t0: float, v0: float, heading: np.ndarray | None, goal: bool):
+    def tightened(self, prepared: Prepared, field: GuidanceField, movers: Sequence[ObstacleState], xy: np.ndarray,
+                  s: np.ndarray, v: np.ndarray, t0: float, v0: float, heading: np.ndarray | None, goal: bool):
         """The speed-planned path xy (arc lengths s, speeds v, from t0 at v0) pulled onto the
-        reference path as far as the body's clearance to the stretch's static obstacles
-        (``tight_clearance``) and the movers' repulsive regions let it (``tighten.py``, stiffness
-        ``tight_length``), and speed-planned again: (xy, s, kappa, v). None when that is 0, when no
-        tight path exists, or when the re-timed tight path would meet a mover as a path to follow does
-        (``FOLLOW_SLACK``: arriving earlier on a shorter path changes where the movers are met). A stretch without obstacles keeps the field's path
-        (it lies on the reference path already)."""
+        reference path as far as the body's clearance (``tight_clearance``) to the stretch's static
+        obstacles and to the movers, ``tight_mover_window`` s before and after the time each point
+        is reached, lets it (``tighten.py``, stiffness ``tight_length``), and speed-planned again:
+        (xy, s, kappa, v). None when that is 0, when the stretch has no obstacle, when no tight path
+        exists, or when the re-timed tight path (a shorter path is reached earlier) comes closer to
+        a mover than the clearance and than the field's timed path does (the movers are taken at the
+        tight path's own times for up to ``MOVER_PASSES`` rounds)."""
         p = self.params
-        if p.tight_length <= 0.0 or not (prepared.statics or field.movers):
+        if p.tight_length <= 0.0 or not (prepared.statics or movers):
             return None
         stretch = self.path.point_at(np.arange(prepared.s0 - 5.0, prepared.s_end + 5.0, 0.5))
-        keepouts = [Keepout(o, self.tight_clearance(o)) for o in prepared.statics]
-        times = t0 + arrival_times(s, v)
-        times[~np.isfinite(times)] = np.max(times[np.isfinite(times)])     # beyond a stop: when it is reached
-        out = tighten_path(xy, times, partial(feet_on_polyline, xy=stretch), self.kappa_max, self.body, keepouts,
-                           _regions(field.movers), p.tight_length, heading, goal)
-        if out is None:
-            return None
-        s, kappa, v = plan_speed(out[0], self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
-                                 v_end=0.0 if goal else None)
-        if field.movers and self.meets_mover(field.movers, timed_trajectory(out[0], s, v, t0, self.dt), FOLLOW_SLACK):
-            return None
-        return out[0], s, kappa, v
+        shifts = (0.0,) if p.tight_mover_window <= 0.0 else (-p.tight_mover_window, 0.0, p.tight_mover_window)
+        moving = [Keepout(o, self.tight_clearance(o), dt) for o in movers for dt in shifts]
+        keepouts = [Keepout(o, self.tight_clearance(o)) for o in prepared.statics] + moving
+        times = field_times = _arrivals(s, v, t0)
+        if moving:      # the field's timed path may pass a mover closer than the clearance: no closer than it
+            field = timed_trajectory(xy, s, v, t0, self.dt)
+            floor = min(0.0, float(np.min(disc_gaps(field.pos, self.body, moving, field.t)))) - CLEAR_TOLERANCE
+        for _ in range(MOVER_PASSES if moving else 1):
+            out = tighten_path(xy, times, partial(feet_on_polyline, xy=stretch), self.kappa_max, self.body, keepouts,
+                               p.tight_length, heading, goal, field_times)
+            if out is None:
+                return None
+            s_t, kappa, v_t = plan_speed(out[0], self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
+                                         v_end=0.0 if goal else None)
+            trajectory = timed_trajectory(out[0], s_t, v_t, t0, self.dt)
+            if not moving or np.min(disc_gaps(trajectory.pos, self.body, moving, trajectory.t)) >= floor:
+                return out[0], s_t, kappa, v_t
+            # the shorter path is reached earlier: each field point is taken at the time the tight
+            # path passes it (its nearest tight point's), and the movers there, next round
+            nearest = np.argmin(((xy[:, None, :] - out[0][None, :, :]) ** 2).sum(axis=2), axis=1)
+            times = _arrivals(s_t, v_t, t0)[nearest]
+        return None
 
     @staticmethod
     def _values(o: ObstacleImplicit, xy: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -281,6 +292,14 @@ class PlannerBase:
             if not self.meets_mover(movers, slower[3]):
                 return slower
         return None
+
+
+def _arrivals(s: np.ndarray, v: np.ndarray, t0: float) -> np.ndarray:
+    """When the speed-planned points (arc lengths s, speeds v) are reached from t0; points beyond a
+    stop when the stop is."""
+    t = t0 + arrival_times(s, v)
+    t[~np.isfinite(t)] = np.max(t[np.isfinite(t)])
+    return t
 
 
 def _regions(terms) -> list[Region]:
@@ -450,7 +469,7 @@ class GuidancePlanner(PlannerBase):
             if slower is not None:
                 s, kappa, v, trajectory = slower
         else:       # a path the field found to pass: as tight as the clearances let it
-            tight = self.tightened(prepared, field, xy, s, v, t0, v0, h, prepared.ends_path and res.reached)
+            tight = self.tightened(prepared, field, movers, xy, s, v, t0, v0, h, prepared.ends_path and res.reached)
             if tight is not None:
                 xy, s, kappa, v = tight
                 trajectory = timed_trajectory(xy, s, v, t0, self.dt)
