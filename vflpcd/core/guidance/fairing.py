@@ -42,7 +42,7 @@ SPACING = 0.25  # resampling step h, m
 CLEAR_LEVEL = 0.8  # half-planes touch varphi = CLEAR_LEVEL * c_i: just outside Q_i (c_i < 0)
 OUTER_ROUNDS = 3  # re-convexifications
 PENALTY = 1e7  # spring holding an active half-plane or a pinned point: it gives way by ~1e-7 m
-ACTIVE_ROUNDS = 200  # active-set rounds per convex problem (cap)
+ACTIVE_ROUNDS = 40  # active-set rounds per convex problem (cap)
 VIOLATION = 1e-6  # m: an inactive half-plane violated by more is added
 RELEASE = 1e-13  # m: an active point held this far outside (multiplier -PENALTY gap < -1e-6) is released
 
@@ -136,9 +136,11 @@ def solve_active_set(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, x0
     pin_end the last) pinned (where ``pins`` (K, d) has them, default r), by an active set: each round solves the banded normal equations with
     the active half-planes (and the pins) held by a stiff spring (PENALTY), then adds every violated
     half-plane, or else releases the one that the spring holds from outside the most (a negative
-    multiplier); it ends when neither exists (x is then the minimiser to ~1e-7 m). ``active0``: the
+    multiplier); it ends when neither exists (x is then the minimiser to ~1e-7 m). Stopped by
+    ``ACTIVE_ROUNDS`` (the release cycles on some degenerate problems), it returns its last iterate
+    that violated no half-plane (the one it stopped at may cut into a region). ``active0``: the
     active set to start from besides the half-planes x0 violates (the previous solve's); returns
-    (x, the final active set)."""
+    (x, its active set)."""
     K, d = r.shape
     u = 2 * d + 1
     base = _hessian_bands(K, d, eps)
@@ -155,7 +157,7 @@ def solve_active_set(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, x0
     if active0 is not None:
         active |= constrained & active0
     pairs = [(j1, j2) for j1 in range(d) for j2 in range(j1, d)]
-    x = x0
+    x, feasible = x0, None
     for _ in range(ACTIVE_ROUNDS):
         ab, f = base.copy(), f0.copy()
         k = np.nonzero(active)[0]
@@ -168,11 +170,12 @@ def solve_active_set(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, x0
         if np.any(violated):
             active |= violated
             continue
+        feasible = x, active.copy()
         held = np.where(active & (gap > RELEASE), gap, 0.0)
         if not np.any(held):
-            break
+            return feasible
         active[np.argmax(held)] = False
-    return x, active
+    return feasible if feasible is not None else (x, active)
 
 
 def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequence[Region],

@@ -145,3 +145,22 @@ def test_the_banded_hessian_is_the_kronecker_product_of_the_bending_energy(K, d)
     for off in range(u + 1):
         expected[u - off, off:] = np.diagonal(M, off)
     np.testing.assert_array_equal(_hessian_bands(K, d, eps), expected)
+
+
+@pytest.mark.parametrize("cap", [3, 6, 9])
+def test_an_active_set_stopped_at_its_round_cap_returns_a_path_that_keeps_every_half_plane(cap, monkeypatch):
+    """Stopped by the round cap (cycling on a degenerate problem does that in practice), the solve
+    returns its last iterate that violates no half-plane, not the one it stopped at: a round that
+    added violated half-planes leaves an iterate that cuts into the repulsive regions (on this
+    problem, two obstacles beside a noisy path, at each of these caps before the fix)."""
+    import vflpcd.core.guidance.fairing as fairing
+
+    rng = np.random.default_rng(59)
+    obstacles = [_obstacle([rng.uniform(3, 7), rng.uniform(-1.0, 1.0)]) for _ in range(2)]
+    r = np.column_stack([np.linspace(0, 10, 41), rng.normal(0, 0.3, 41)])
+    r[:2, 1] = 0.0
+    n, b = half_planes(r, np.zeros(41), _values(obstacles))
+    monkeypatch.setattr(fairing, "ACTIVE_ROUNDS", cap)
+    x, _ = fairing.solve_active_set(r, (SPACING / 4.0) ** 4, n, b, r, pin_end=True)
+    gap = np.where(np.isfinite(b), np.einsum("ij,ij->i", n, x) - b, 0.0)
+    assert gap[2:-1].min() > -fairing.VIOLATION
