@@ -95,19 +95,20 @@ def bench_ml(out: Path, seeds: int = 5, laps: int = 2) -> dict:
     summary = {}
     for label, _ in CONTROLLERS:
         mine = [r for r in runs if r["label"] == label]
-        summary[label] = {k: float(np.mean([r[k] for r in mine if r[k] is not None]))
-                          for k in ("rms_lateral_lap2", "J_MC", "J_Con", "jerk_p99", "jerk_max", "refits", "chatter_s",
-                                    "offset_left", "offset_right")}
+        summary[label] = {k: _mean([r[k] for r in mine]) for k in ("rms_lateral_lap2", "J_MC", "J_Con", "jerk_p99",
+                                                                   "jerk_max", "refits", "chatter_s", "offset_left",
+                                                                   "offset_right")}
+        summary[label]["without_lap2"] = sum(r["rms_lateral_lap2"] is None for r in mine)
     wo, w = summary["w/o ML"], summary["w/ ML"]
-    better = sum(b["rms_lateral_lap2"] < a["rms_lateral_lap2"] for a, b in
+    better = sum(lap2_better(a["rms_lateral_lap2"], b["rms_lateral_lap2"]) for a, b in
                  zip([r for r in runs if r["label"] == "w/o ML"], [r for r in runs if r["label"] == "w/ ML"]))
-    print(f"\nmeans over {seeds} seeds:")
+    print(f"\nmeans over {seeds} seeds (of the runs that drove a lap 2):")
     for label in summary:
         s = summary[label]
         print(f"  {label:<7} RMS lat lap 2 {s['rms_lateral_lap2']:.4f} m, J_MC {s['J_MC']:.4f}, J_Con {s['J_Con']:.4f}, "
               f"jerk p99/max {s['jerk_p99']:.2f}/{s['jerk_max']:.2f} m/s^3, refits {s['refits']:.1f}, "
               f"chatter {s['chatter_s']:.1f} s, lap-2 offset in left/right curves {s['offset_left']:+.3f}/"
-              f"{s['offset_right']:+.3f} m")
+              f"{s['offset_right']:+.3f} m" + (f"; {s['without_lap2']} run(s) never drove a lap 2" if s["without_lap2"] else ""))
     change = 1.0 - w["rms_lateral_lap2"] / wo["rms_lateral_lap2"]
     print(f"  w/ ML against w/o ML: lap-2 RMS lateral {abs(change) * 100:.1f} % {'lower' if change > 0 else 'higher'}, "
           f"lower in {better}/{seeds} seeds; J_Con {(w['J_Con'] / wo['J_Con'] - 1.0) * 100:+.1f} %")
@@ -136,6 +137,20 @@ def plot(runs: list[dict], path: Path) -> Path:
     ax.grid(alpha=0.3)
     fig.tight_layout()
     return save_png(fig, path, 120)
+
+
+def lap2_better(without: float | None, with_ml: float | None) -> bool:
+    """Whether the run w/ ML tracked better on lap 2 than the run w/o ML of the same seed: a lower
+    RMS, or a lap 2 where the other run drove none (None: the run stopped before it)."""
+    if with_ml is None:
+        return False
+    return without is None or with_ml < without
+
+
+def _mean(values) -> float:
+    """The mean of the values that exist (not None, finite); NaN when none does."""
+    v = [x for x in values if x is not None and np.isfinite(x)]
+    return float(np.mean(v)) if v else float("nan")
 
 
 def _f(v, digits: int) -> str:

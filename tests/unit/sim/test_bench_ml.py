@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from sim.bench.ml import chatter_seconds, curve_offsets, lap_two
+from sim.bench.ml import chatter_seconds, curve_offsets, lap2_better, lap_two
 from vflpcd.core.path import ReferencePath
 
 
@@ -40,3 +40,11 @@ def test_curve_offsets_average_the_lateral_error_in_left_and_in_right_curves():
     left, right = curve_offsets(SimpleNamespace(path=path), record, np.arange(len(s)))
     assert left == pytest.approx(0.3)
     assert np.isnan(right)
+
+
+def test_a_run_that_never_drove_a_lap_two_is_never_the_better_one():
+    """A run stopped before lap 2 has no lap-2 RMS (None): it is not better than a run that drove
+    one, and a run that drove one is better than it (the bench used to crash comparing None)."""
+    assert lap2_better(0.2, 0.1) and not lap2_better(0.1, 0.2)
+    assert not lap2_better(0.2, None) and lap2_better(None, 0.3)
+    assert not lap2_better(None, None)
