@@ -42,7 +42,7 @@ SPACING = 0.25  # resampling step h, m
 CLEAR_LEVEL = 0.8  # half-planes touch varphi = CLEAR_LEVEL * c_i: just outside Q_i (c_i < 0)
 OUTER_ROUNDS = 3  # re-convexifications
 PENALTY = 1e7  # spring holding an active half-plane or a pinned point: it gives way by ~1e-7 m
-ACTIVE_ROUNDS = 40  # active-set rounds per convex problem (cap)
+ACTIVE_ROUNDS = 200  # active-set rounds per convex problem (cap)
 VIOLATION = 1e-6  # m: an inactive half-plane violated by more is added
 RELEASE = 1e-13  # m: an active point held this far outside (multiplier -PENALTY gap < -1e-6) is released
 

@@ -130,6 +130,10 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
     if any(v.implicit.p != 2.0 or v.implicit.axes[0] != v.implicit.axes[1] for v in field.virtuals):
         raise GuidanceError("virtual obstacles must be circles")
     k_c, k_r = field.k_c, field.k_r
+    # per mover, in plain floats: its centre at its stamp, velocity, stamp and squared reach
+    movers = [(term, term.implicit, float(term.implicit.center[0]), float(term.implicit.center[1]),
+               float(term.implicit.velocity[0]), float(term.implicit.velocity[1]), term.implicit.stamp,
+               term.implicit.reach ** 2) for term in field.movers]
     po, pd = field.path.progress_frame()  # progress = (xi - po) . pd
     xy = [(x, y)]
     inherited = 0
@@ -157,12 +161,10 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
             rx, ry = (rpx, rpy) if gammas[n] > 0 else (rmx, rmy)
             P *= cup
             Vx, Vy = Vx + (1.0 - cup) * rx, Vy + (1.0 - cup) * ry
-        if field.movers:
+        if movers:
             t = step_time(k, t0, beta, speed, step_times)
-            for term in field.movers:
-                o = term.implicit
-                c = o.center_at(t)
-                if (x - c[0]) ** 2 + (y - c[1]) ** 2 > o.reach ** 2:
+            for term, o, cx, cy, vx, vy, stamp, reach2 in movers:
+                if (x - cx - vx * (t - stamp)) ** 2 + (y - cy - vy * (t - stamp)) ** 2 > reach2:
                     continue
                 phi, g = o.value_grad(np.array([[x, y]]), t)
                 cup, cap = bump(phi, o.c, field.l1, field.l2)
