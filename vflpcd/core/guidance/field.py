@@ -23,11 +23,13 @@ from vflpcd.core.guidance.implicit import ObstacleImplicit
 
 @dataclass(frozen=True)
 class ActualTerm:
-    """An actual obstacle with its direction gamma_i (+1 / -1) and its passing side (+1 left, -1 right)."""
+    """An actual obstacle with its direction gamma_i (+1 / -1) and its passing side (+1 left, -1 right);
+    ``crosses``: a mover that crosses the route (faster than the planner's ``CROSSING_SPEED``)."""
 
     implicit: ObstacleImplicit
     gamma: float
     side: float
+    crosses: bool = False
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,10 @@
    side that leaves the path least, i.e. the side where the repulsive region reaches less far
    across the path (measured along the path normal at the obstacle); gamma_i is then the sign
    that makes gamma_i E grad varphi_i point along the path on that side. A mover that crosses the
-   path faster than ``CROSSING_SPEED`` (1 m/s: walkers too) is passed behind, on the side it comes
-   from (swerving to the side it moves to puts the robot in its way).
+   path faster than ``CROSSING_SPEED`` (1 m/s: walkers too) is yielded to: the plan keeps to the
+   route and slows before the crossing until its timed trajectory stays clear (``yielding``); where
+   no such speed exists it is passed behind, on the side it comes from (swerving to the side it
+   moves to puts the robot in its way).
 3. Virtual obstacles (``virtual = "auto"``): for each static obstacle whose reactive region
    the stretch enters, a circle whose repulsive boundary Q_vrtl has the turning radius
    v_d^2 / a_max, touches the path ``r_q * lead`` metres before the entry into R_actl on the
@@ -294,6 +296,21 @@ class PlannerBase:
         return None
 
 
+def _crossing_entry(xy: np.ndarray, s: np.ndarray, crossing: Sequence[ObstacleImplicit], t0: float) -> float:
+    """The arc length (of s (K,)) of the first point of the path xy (K, d) that comes within a
+    crossing mover's reach of its line of motion (where yielding must be done by); the path's end
+    when none does."""
+    first = len(xy) - 1
+    for o in crossing:
+        v = o.velocity / max(float(np.linalg.norm(o.velocity)), 1e-12)
+        rel = xy - o.center_at(t0)
+        dist = np.abs(rel[:, 0] * v[1] - rel[:, 1] * v[0])
+        near = np.flatnonzero(dist < o.reach)
+        if near.size:
+            first = min(first, int(near[0]))
+    return float(s[first])
+
+
 def _arrivals(s: np.ndarray, v: np.ndarray, t0: float) -> np.ndarray:
     """When the speed-planned points (arc lengths s, speeds v) are reached from t0; points beyond a
     stop when the stop is."""
@@ -348,7 +365,7 @@ class GuidancePlanner(PlannerBase):
         _, g = o.value_grad(p_pass[None, :], t)
         along = float(tangent @ (E @ g[0]))
         gamma = np.sign(along) if along != 0.0 else -side
-        return ActualTerm(implicit=o, gamma=float(gamma), side=side)
+        return ActualTerm(implicit=o, gamma=float(gamma), side=side, crosses=abs(crossing) > CROSSING_SPEED)
 
     def virtual_for(self, term: ActualTerm, s0: float, s_end: float, graph: GraphPath) -> VirtualTerm | None:
         """The automatic virtual obstacle of an actual one (None if the stretch does not enter R_actl
@@ -453,12 +470,24 @@ class GuidancePlanner(PlannerBase):
 
     def plan(self, prepared: Prepared, start: np.ndarray, t0: float, v0: float,
              movers: Sequence[ObstacleState] = (), heading: float | None = None) -> GuidancePlan:
-        """Integrate from start (2,) at time t0 and speed v0, with moving obstacles, and time the result."""
+        """Integrate from start (2,) at time t0 and speed v0, with moving obstacles, and time the
+        result. Movers that cross the route are yielded to where that is possible (``yielding``)."""
         field = prepared.field
         if movers:
             field = replace(field, movers=[self.actual_term(self.implicit(o), t0) for o in movers])
         start = self.check_clear(start, field.statics + field.movers, t0, "start")
         h = None if heading is None else np.array([np.cos(heading), np.sin(heading)])
+        crossing = [o for o, term in zip(movers, field.movers) if term.crosses]
+        if crossing:
+            yielded = self.yielding(prepared, field, start, t0, v0, h, movers, crossing)
+            if yielded is not None:
+                return yielded
+        return self._planned(prepared, field, start, t0, v0, h, movers)
+
+    def _planned(self, prepared: Prepared, field: GuidanceField, start: np.ndarray, t0: float, v0: float,
+                 h: np.ndarray | None, movers: Sequence[ObstacleState]) -> GuidancePlan:
+        """The field's plan with ``field``'s movers (``movers`` their states): integrated, placed at the
+        last pass's times, then slowed to follow a mover it cannot pass, or made tight."""
         res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h, None)
         for _ in range(MOVER_PASSES if movers else 0):  # place moving obstacles at the last pass's times
             res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h,
@@ -476,3 +505,28 @@ class GuidancePlanner(PlannerBase):
         return GuidancePlan(trajectory=trajectory, xy=xy, s=s, kappa=kappa, v=v, raw=res.xy,
                             reached=res.reached, inherited=res.inherited, field=field, gammas=res.gammas,
                             virtual_off=res.virtual_off)
+
+    def yielding(self, prepared: Prepared, field: GuidanceField, start: np.ndarray, t0: float, v0: float,
+                 h: np.ndarray | None, movers: Sequence[ObstacleState], crossing: Sequence[ObstacleState]):
+        """The plan that yields to the movers crossing the route: planned as if they were not there
+        (no swerve round them), then slowed before the first point where its path comes within a
+        crossing mover's reach of that mover's line of motion, to ``FOLLOW_SPEEDS`` of v_desired
+        (fastest first), until its timed trajectory meets no mover; after that point it speeds up
+        again. None when no such speed exists (the field's plan passes behind them then)."""
+        ids = {o.id for o in crossing}
+        others = [o for o in movers if o.id not in ids]
+        own = replace(field, movers=[term for term in field.movers if term.implicit.name not in ids])
+        plan = self._planned(prepared, own, start, t0, v0, h, others)
+        if self.meets_mover(own.movers, plan.trajectory):
+            return None                  # it must follow or pass another mover: the field's plan decides
+        entry = _crossing_entry(plan.xy, plan.s, [term.implicit for term in field.movers
+                                                  if term.implicit.name in ids], t0)
+        p = self.params
+        for f in (1.0,) + FOLLOW_SPEEDS:
+            cap = np.where(plan.s < entry, f * self.v_desired, self.v_desired)
+            s, kappa, v = plan_speed(plan.xy, cap, self.a_lat_max, p.a_accel, p.a_decel, v0,
+                                     v_end=0.0 if _stops(plan.v) else None)
+            trajectory = timed_trajectory(plan.xy, s, v, t0, self.dt)
+            if not self.meets_mover(field.movers, trajectory):
+                return replace(plan, trajectory=trajectory, s=s, kappa=kappa, v=v, field=field)
+        return None

@@ -244,6 +244,28 @@ gamma = 1
         GuidancePlanner(s.path, bad, 3.0, 2.0, 1.25, 0.05).prepare(0.0, [static("c1", Circle(1.0), 8.0, 1.2)])
 
 
+@pytest.mark.parametrize("start_y", [-40.0, -37.0])     # at 6 m/s both reach the crossing at about 6.7 s
+def test_a_car_crossing_the_route_is_yielded_to_not_swerved_round(params, start_y):
+    """A car crossing the route at 6 m/s ahead: the plan keeps to the route (no swerve), slows before
+    the crossing so that its timed trajectory stays out of the car's repulsive region (at full speed
+    on the same path it would enter it), and is back at the desired speed beyond it."""
+    path = ReferencePath.line([0.0, 0.0], [100.0, 0.0])
+    planner = GuidancePlanner(path, params, 6.0, 3.0, 1.25, 0.05)
+    car = ObstacleState(id="crossing", shape=Box(4.5, 1.9), center=np.array([40.0, start_y]), yaw=np.pi / 2,
+                        velocity=np.array([0.0, 6.0]), stamp=0.0)
+    prepared = planner.prepare(0.0, [])
+    plan = planner.plan(prepared, np.zeros(2), 0.0, 6.0, [car], heading=0.0)
+    term = plan.field.movers[0]
+    assert term.crosses
+    assert np.max(np.abs(plan.xy[:, 1])) < 0.05                                # on the route
+    assert not planner.meets_mover(plan.field.movers, plan.trajectory)        # clear of the car as timed
+    assert np.min(plan.v) < 0.95 * planner.v_desired                           # it slowed for it
+    assert plan.v[-1] == pytest.approx(planner.v_desired)                      # and went on at speed
+    s_, _, v_ = plan_speed(plan.xy, planner.v_desired, 3.0, params.a_accel, params.a_decel, 6.0)
+    full_speed = timed_trajectory(plan.xy, s_, v_, 0.0, 0.05)
+    assert planner.meets_mover(plan.field.movers, full_speed)                  # at full speed it would meet the car
+
+
 @pytest.mark.parametrize("speed, side", [(4.0, -1.0), (-4.0, 1.0), (1.2, -1.0), (-1.2, 1.0), (0.6, 1.0)])
 def test_a_crosser_is_passed_behind_and_a_dawdler_where_it_leaves_the_path_least(params, speed, side):
     """A cyclist at 4 m/s or a walker at 1.2 m/s crossing from either side is passed on the side it
