@@ -170,6 +170,22 @@ class ReferencePath:
         progress monotone where a path passes near itself (a closed track, a hairpin).
         """
         p = np.asarray(p, dtype=float)
+        s, point, d2 = self._nearest(p, s_hint, back, ahead)
+        tangent = self.tangent_at(s)  # vertex tangents interpolated: smooth along the path
+        heading = float(np.arctan2(tangent[1], tangent[0]))
+        if self.dim == 2:
+            lateral = float((p[0] - point[0]) * np.sin(heading) - (p[1] - point[1]) * np.cos(heading))
+        else:
+            lateral = float(np.sqrt(d2))
+        return Projection(s=s, point=point, tangent=tangent, heading=heading, lateral=lateral)
+
+    def arc_length_of(self, p, s_hint: float | None = None, back: float = 10.0, ahead: float = 30.0) -> float:
+        """The arc length s of ``project(p, s_hint, back, ahead)`` alone (no tangent, heading or lateral error)."""
+        return self._nearest(np.asarray(p, dtype=float), s_hint, back, ahead)[0]
+
+    def _nearest(self, p: np.ndarray, s_hint: float | None, back: float, ahead: float
+                 ) -> tuple[float, np.ndarray, float]:
+        """Arc length, point (d,) and squared distance of the nearest point of the searched stretch (``project``)."""
         if s_hint is None:
             idx = slice(0, len(self._seg_vec))
         elif not self.closed:                 # the segments overlapping [lo, lo + span]: s is sorted
@@ -193,20 +209,14 @@ class ReferencePath:
                 idx = np.array([len(self._seg_vec) - 1 if lo > 0 else 0])
         a = self.points[idx]
         v = self._seg_vec[idx]
-        w = np.clip(np.einsum("ij,ij->i", p - a, v) / self._seg_len2[idx], 0.0, 1.0)
+        w = np.minimum(np.maximum(np.einsum("ij,ij->i", p - a, v) / self._seg_len2[idx], 0.0), 1.0)
         foot = a + w[:, None] * v
-        d2 = np.einsum("ij,ij->i", p - foot, p - foot)
+        e = p - foot
+        d2 = np.einsum("ij,ij->i", e, e)
         k = int(np.argmin(d2))
         i = idx.start + k if isinstance(idx, slice) else int(idx[k])
         s = float(self.s[i] + w[k] * np.sqrt(self._seg_len2[i]))
-        tangent = self.tangent_at(s)  # vertex tangents interpolated: smooth along the path
-        point = foot[k]
-        heading = float(np.arctan2(tangent[1], tangent[0]))
-        if self.dim == 2:
-            lateral = float((p[0] - point[0]) * np.sin(heading) - (p[1] - point[1]) * np.cos(heading))
-        else:
-            lateral = float(np.sqrt(d2[k]))
-        return Projection(s=s, point=point, tangent=tangent, heading=heading, lateral=lateral)
+        return s, foot[k], float(d2[k])
 
 
 def progress_delta(path: ReferencePath, s_new: float, s_old: float) -> float:

@@ -33,6 +33,7 @@ out the due replan as a picklable ``ReplanJob``, ``plan_job(planner, job)`` runs
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from typing import Protocol, Sequence
 
@@ -45,7 +46,7 @@ from vflpcd.core.control.game_region import threats
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
 from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
-from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
+from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout, to_window_frame
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import nearest_on_polyline
@@ -164,6 +165,32 @@ class VFLPCParams:
 
 
 
+def unit_differences(points: np.ndarray) -> np.ndarray:
+    """The unit directions (T, d) along points (T >= 2, d): central differences inside, one-sided at the
+    ends (``np.gradient(points, axis=0)``, the same numbers), normalised (a zero difference stays ~0)."""
+    diff = np.empty_like(points)
+    diff[1:-1] = (points[2:] - points[:-2]) / 2.0
+    diff[0] = points[1] - points[0]
+    diff[-1] = points[-1] - points[-2]
+    return diff / np.maximum(np.sqrt(np.add.reduce(diff * diff, axis=1, keepdims=True)), 1e-9)
+
+
+def _norm(v: np.ndarray) -> float:
+    """||v|| of a vector (n,), as ``np.linalg.norm`` computes it (sqrt of v.v), without its overhead."""
+    return math.sqrt(v.dot(v))
+
+
+def _check_obstacles(obstacles: Sequence[ObstacleState], dim: int) -> None:
+    """Raise ValueError unless every obstacle's centre and velocity are ``dim`` finite numbers."""
+    for o in obstacles:
+        if o.center.shape != (dim,) or o.velocity.shape != (dim,):
+            raise ValueError(f"obstacle {o.id!r}: centre and velocity must be {dim} finite numbers")
+    values = np.concatenate([np.concatenate([o.center, o.velocity]) for o in obstacles])
+    if not np.isfinite(values).all():
+        bad = next(o for o in obstacles if not (np.isfinite(o.center).all() and np.isfinite(o.velocity).all()))
+        raise ValueError(f"obstacle {bad.id!r}: centre and velocity must be {dim} finite numbers")
+
+
 def _velocities(obstacles: Sequence[ObstacleState]) -> dict[str, np.ndarray]:
     """The obstacle picture a replan is made for: each obstacle's velocity by id."""
     return {o.id: o.velocity for o in obstacles}
@@ -222,7 +249,7 @@ class VFLPC(ControllerBase):
         missing = [n for n in model.state_names if n not in self.state_names]
         if missing:
             raise ValueError(f"the platform state {self.state_names} lacks the model's {missing}")
-        self._select = [self.state_names.index(n) for n in model.state_names]
+        self._select = np.array([self.state_names.index(n) for n in model.state_names])
         self.name = name
         self.dt = model.dt
         self.period = float(period) if period is not None else self.dt
@@ -232,7 +259,14 @@ class VFLPC(ControllerBase):
                              f"for the GP to learn model-step transitions")
         self._observe_every = max(1, int(round(every)))
         self.N = max(1, int(round(params.horizon_s / self.dt)))
+        self._horizon_offsets = self.dt * np.arange(self.N + 1)     # tau dt, tau = 0 .. N
         self.dim = planner.dim
+        names, layout = model.state_names, PoseLayout.of(model.state_names)
+        self._pos_index = np.array(layout.position)
+        if layout.kind == "planar":                     # heading, body velocities
+            self._vel_index = np.array([layout.heading, names.index("vx"), names.index("vy")])
+        else:                                           # world velocities
+            self._vel_index = np.array([names.index(n) for n in ("vx", "vy", "vz")[: self.dim]])
         self.errors = em = ErrorModel(model, params.Q_x, params.q_lift, params.R, params.gamma, self.N, limits,
                                       compensator.comp if compensator is not None else None,
                                       gp_jacobians=params.gp_linearisation == "gp")
@@ -434,15 +468,14 @@ class VFLPC(ControllerBase):
     def _inputs(self, state: np.ndarray, obstacles: Sequence[ObstacleState]):
         """Checked model state, obstacles, position and velocity; remembers them for a forced replan."""
         state = np.asarray(state, float)
-        if state.shape != (len(self.state_names),) or not np.all(np.isfinite(state)):
+        if state.shape != (len(self.state_names),) or not np.isfinite(state).all():
             raise ValueError(f"state must be {len(self.state_names)} finite numbers {self.state_names}, got {state!r}")
         state = state[self._select]
         obstacles = tuple(obstacles)
-        for o in obstacles:
-            if not (np.all(np.isfinite(o.center)) and np.all(np.isfinite(o.velocity))) or o.center.shape != (self.dim,):
-                raise ValueError(f"obstacle {o.id!r}: centre and velocity must be {self.dim} finite numbers")
+        if obstacles:
+            _check_obstacles(obstacles, self.dim)
         pos, vel = self._position(state), self._velocity(state)
-        self._s = self.planner.path.project(pos, self._s).s
+        self._s = self.planner.path.arc_length_of(pos, self._s)
         heading = float(state[self.errors.layout.heading]) if self.dim == 2 else None
         self._last_inputs = (pos, vel, heading, obstacles)
         return state, obstacles, pos, vel
@@ -459,14 +492,14 @@ class VFLPC(ControllerBase):
         return float(np.arctan2(vel[1], vel[0]))
 
     def _position(self, state: np.ndarray) -> np.ndarray:
-        return state[list(self.errors.layout.position)]
+        return state[self._pos_index]
 
     def _velocity(self, state: np.ndarray) -> np.ndarray:
-        names = self.model.state_names
         if self.errors.layout.kind == "planar":
-            psi, vx, vy = state[self.errors.layout.heading], state[names.index("vx")], state[names.index("vy")]
-            return np.array([vx * np.cos(psi) - vy * np.sin(psi), vx * np.sin(psi) + vy * np.cos(psi)])
-        return state[[names.index(n) for n in ("vx", "vy", "vz")[: self.dim]]]
+            psi, vx, vy = state[self._vel_index]
+            c, s = np.cos(psi), np.sin(psi)
+            return np.array([vx * c - vy * s, vx * s + vy * c])
+        return state[self._vel_index]
 
     def _changed(self, obstacles: Sequence[ObstacleState]) -> bool:
         """Whether the obstacle picture differs (an obstacle appeared or went, or its velocity changed
@@ -480,7 +513,7 @@ class VFLPC(ControllerBase):
         sig = _velocities(obstacles)
         if sig.keys() != ref.keys():
             return True
-        return any(np.linalg.norm(sig[k] - ref[k]) > self.params.velocity_change for k in sig)
+        return any(_norm(sig[k] - ref[k]) > self.params.velocity_change for k in sig)
 
     def _guidance(self, pos, vel, state, t: float, obstacles) -> None:
         """Replan now if there is no reference yet, else leave a due replan to ``background``."""
@@ -506,20 +539,18 @@ class VFLPC(ControllerBase):
 
     def _reference(self, t: float) -> np.ndarray:
         """World reference states (N + 1, n_x) at t + tau dt, in the model's state order."""
-        traj = self._plan.trajectory
-        smp = traj.sample(t + self.dt * np.arange(self.N + 1))
-        names = self.model.state_names
-        out = np.zeros((self.N + 1, self.model.n_x))
-        if self.errors.layout.kind == "planar":
+        planar = self.errors.layout.kind == "planar"
+        smp = self._plan.trajectory.sample(t + self._horizon_offsets, ("psi", "v", "omega", "pos") if planar else ("v", "pos"))
+        if planar:
             cols = {"X": smp["pos"][:, 0], "Y": smp["pos"][:, 1], "psi": smp["psi"], "yaw": smp["psi"],
                     "vx": smp["v"], "omega": smp["omega"]}
         else:
-            tangent = np.gradient(smp["pos"], axis=0)
-            tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
+            tangent = unit_differences(smp["pos"])
             v = tangent * smp["v"][:, None]
             cols = {"X": smp["pos"][:, 0], "Y": smp["pos"][:, 1], "Z": smp["pos"][:, 2],
                     "vx": v[:, 0], "vy": v[:, 1], "vz": v[:, 2]}
-        for j, name in enumerate(names):
+        out = np.zeros((self.N + 1, self.model.n_x))
+        for j, name in enumerate(self.model.state_names):
             if name in cols:
                 out[:, j] = cols[name]
         return out

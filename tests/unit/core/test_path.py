@@ -53,3 +53,12 @@ def test_bad_points_raise():
         ReferencePath(np.array([[0.0, 0.0], [np.nan, 1.0]]))
     with pytest.raises(ValueError):
         ReferencePath.from_waypoints(np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 1.0]]))
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_arc_length_of_is_the_projections_arc_length(closed):
+    path = ReferencePath.arc([0.0, 0.0], 20.0, 0.0, 2 * np.pi if closed else np.pi)
+    rng = np.random.default_rng(0)
+    for s_hint in (None, *rng.uniform(0.0, path.length, 20)):
+        p = path.point_at(rng.uniform(0.0, path.length)) + rng.normal(size=2)
+        assert path.arc_length_of(p, s_hint) == path.project(p, s_hint).s

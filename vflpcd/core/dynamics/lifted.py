@@ -74,12 +74,13 @@ class PoseLayout:
         return cls("none", (), None)
 
 
-def to_window_frame(states: np.ndarray, state_names: Sequence[str]) -> np.ndarray:
+def to_window_frame(states: np.ndarray, state_names: Sequence[str], layout: PoseLayout | None = None) -> np.ndarray:
     """World-frame windows (..., T, n_x) -> the same windows in their first pose's frame (..., T, n_x).
 
-    ``state_names`` (n_x,) name the columns and decide the convention (module docstring)."""
+    ``state_names`` (n_x,) name the columns and decide the convention (module docstring);
+    ``layout``: their ``PoseLayout`` when at hand (a caller that converts every tick keeps it)."""
     w = np.array(states, dtype=np.float64)  # copy
-    lay = PoseLayout.of(state_names)
+    lay = PoseLayout.of(state_names) if layout is None else layout
     if w.ndim < 2 or w.shape[-1] != len(state_names):
         raise ValueError(f"expected windows of shape (..., T, {len(state_names)}), got {w.shape}")
     if lay.kind == "none":
@@ -89,13 +90,24 @@ def to_window_frame(states: np.ndarray, state_names: Sequence[str]) -> np.ndarra
     if lay.kind == "position":
         w[..., p] = dp
         return w
-    psi = np.unwrap(w[..., lay.heading], axis=-1)
+    psi = unwrap_angles(w[..., lay.heading])
     psi0 = psi[..., :1]
     c, s = np.cos(psi0), np.sin(psi0)
     w[..., p[0]] = c * dp[..., 0] + s * dp[..., 1]
     w[..., p[1]] = -s * dp[..., 0] + c * dp[..., 1]
     w[..., lay.heading] = psi - psi0
     return w
+
+
+def unwrap_angles(angles: np.ndarray) -> np.ndarray:
+    """``np.unwrap(angles, axis=-1)`` (the same numbers, a new array); a sequence without a step of pi
+    or more, the usual window, is returned as it is without np.unwrap's corrections (all zero there)."""
+    step = np.diff(angles, axis=-1)
+    if not (np.abs(step) < np.pi).all():
+        return np.unwrap(angles, axis=-1)
+    out = np.array(angles, dtype=np.float64)
+    out[..., 1:] += 0.0         # as np.unwrap adds its (zero) corrections: -0.0 becomes 0.0
+    return out
 
 
 def from_window_frame(window_states: np.ndarray, state_names: Sequence[str], origin: np.ndarray) -> np.ndarray:
