@@ -33,7 +33,6 @@ out the due replan as a picklable ``ReplanJob``, ``plan_job(planner, job)`` runs
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass
 from typing import Protocol, Sequence
 
@@ -49,6 +48,7 @@ from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout, to_window_frame
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.norms import row_norms, vector_norm
 from vflpcd.core.path import nearest_on_polyline
 from vflpcd.core.ports import ControllerBase, ControllerStatus
 
@@ -172,12 +172,7 @@ def unit_differences(points: np.ndarray) -> np.ndarray:
     diff[1:-1] = (points[2:] - points[:-2]) / 2.0
     diff[0] = points[1] - points[0]
     diff[-1] = points[-1] - points[-2]
-    return diff / np.maximum(np.sqrt(np.add.reduce(diff * diff, axis=1, keepdims=True)), 1e-9)
-
-
-def _norm(v: np.ndarray) -> float:
-    """||v|| of a vector (n,), as ``np.linalg.norm`` computes it (sqrt of v.v), without its overhead."""
-    return math.sqrt(v.dot(v))
+    return diff / np.maximum(row_norms(diff, keepdims=True), 1e-9)
 
 
 def _check_obstacles(obstacles: Sequence[ObstacleState], dim: int) -> None:
@@ -267,6 +262,8 @@ class VFLPC(ControllerBase):
             self._vel_index = np.array([layout.heading, names.index("vx"), names.index("vy")])
         else:                                           # world velocities
             self._vel_index = np.array([names.index(n) for n in ("vx", "vy", "vz")[: self.dim]])
+        span = limits.u_max - limits.u_min        # a first command beyond this bound is a divergence (_solve_with)
+        self._divergence_bound = params.divergence * np.where(np.isfinite(span), span, 1e6)
         self.errors = em = ErrorModel(model, params.Q_x, params.q_lift, params.R, params.gamma, self.N, limits,
                                       compensator.comp if compensator is not None else None,
                                       gp_jacobians=params.gp_linearisation == "gp")
@@ -343,7 +340,7 @@ class VFLPC(ControllerBase):
         self._guidance(pos, vel, state, t, obstacles)
         ref = self._reference(t)
         frame = self.errors.frame(state, ref)
-        p_ref_world = ref[:, list(self.errors.layout.position)]
+        p_ref_world = ref[:, self._pos_index]
         observe_now = self._ticks % self._observe_every == 0
         self._ticks += 1
         if observe_now:
@@ -359,8 +356,8 @@ class VFLPC(ControllerBase):
         else:
             u_tilde0 = self._solve(problem, barrier, self.errors.K_terminal)
         u = problem.u_ref[0] + u_tilde0
-        u = np.clip(u, self.limits.u_min, self.limits.u_max)
-        u = np.clip(u, u_prev - self.limits.du_max, u_prev + self.limits.du_max)
+        u = np.minimum(np.maximum(u, self.limits.u_min), self.limits.u_max)            # magnitude limits
+        u = np.minimum(np.maximum(u, u_prev - self.limits.du_max), u_prev + self.limits.du_max)   # rate limits
         self.solver.shift()
         self._u_prev = u
         if observe_now:
@@ -513,7 +510,7 @@ class VFLPC(ControllerBase):
         sig = _velocities(obstacles)
         if sig.keys() != ref.keys():
             return True
-        return any(_norm(sig[k] - ref[k]) > self.params.velocity_change for k in sig)
+        return any(vector_norm(sig[k] - ref[k]) > self.params.velocity_change for k in sig)
 
     def _guidance(self, pos, vel, state, t: float, obstacles) -> None:
         """Replan now if there is no reference yet, else leave a due replan to ``background``."""
@@ -601,7 +598,7 @@ class VFLPC(ControllerBase):
 
     def _barrier(self, frame: TickFrame, p_world: np.ndarray, pos, vel, t: float, obstacles) -> HorizonBarrier:
         self.last_threats = ()
-        idx = np.array(self.errors.layout.position)
+        idx = self._pos_index
         p_ref = frame.x_r[:, idx]
         p = self.params
         if not obstacles or p.mu == 0.0 or p.max_threats == 0:
@@ -613,11 +610,11 @@ class VFLPC(ControllerBase):
         centers = np.array([o.center_at(t) for o in obstacles])
         l = np.array([o.shape.bounding_radius() for o in obstacles]) + grow
         mask = threats(pos, vel, centers, np.array([o.velocity for o in obstacles]), l, p.l_safe)
-        chosen = sorted(np.flatnonzero(mask), key=lambda i: np.linalg.norm(centers[i] - pos))[: p.max_threats]
+        chosen = sorted(np.flatnonzero(mask), key=lambda i: vector_norm(centers[i] - pos))[: p.max_threats]
         self.last_threats = tuple(obstacles[i].id for i in chosen)
         if not chosen:
             return no_barrier(idx, p_ref)
-        times = t + self.dt * np.arange(self.N + 1)
+        times = t + self._horizon_offsets
         xs, ns = [], []
         for i in chosen:
             x_p, n_p = safety_points(obstacles[i], p_world, times, grow)
@@ -633,15 +630,13 @@ class VFLPC(ControllerBase):
     def _solve_with(self, solver, problem: HorizonProblem, barrier: HorizonBarrier) -> np.ndarray | None:
         """``solver``'s plan u~ (N, n_u) of ``problem``; None (counted in ``fallbacks``, the solver
         reset) when it fails or diverges."""
-        span = self.limits.u_max - self.limits.u_min
-        bound = self.params.divergence * np.where(np.isfinite(span), span, 1e6)
         try:
             u_tilde, info = solver.solve(problem, barrier)
             self.last_info = info
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             log.warning("event=solver_error reason=%s", exc)
             u_tilde = None
-        if u_tilde is None or not np.all(np.isfinite(u_tilde[0])) or np.any(np.abs(u_tilde[0]) > bound):
+        if u_tilde is None or not np.isfinite(u_tilde[0]).all() or (np.abs(u_tilde[0]) > self._divergence_bound).any():
             self.fallbacks += 1
             solver.reset()
             return None
