@@ -33,6 +33,7 @@ out the due replan as a picklable ``ReplanJob``, ``plan_job(planner, job)`` runs
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from typing import Protocol, Sequence
 
@@ -178,12 +179,9 @@ def unit_differences(points: np.ndarray) -> np.ndarray:
 def _check_obstacles(obstacles: Sequence[ObstacleState], dim: int) -> None:
     """Raise ValueError unless every obstacle's centre and velocity are ``dim`` finite numbers."""
     for o in obstacles:
-        if o.center.shape != (dim,) or o.velocity.shape != (dim,):
+        if (o.center.shape != (dim,) or o.velocity.shape != (dim,)
+                or not all(map(math.isfinite, o.center.tolist() + o.velocity.tolist()))):
             raise ValueError(f"obstacle {o.id!r}: centre and velocity must be {dim} finite numbers")
-    values = np.concatenate([np.concatenate([o.center, o.velocity]) for o in obstacles])
-    if not np.isfinite(values).all():
-        bad = next(o for o in obstacles if not (np.isfinite(o.center).all() and np.isfinite(o.velocity).all()))
-        raise ValueError(f"obstacle {bad.id!r}: centre and velocity must be {dim} finite numbers")
 
 
 def _velocities(obstacles: Sequence[ObstacleState]) -> dict[str, np.ndarray]:

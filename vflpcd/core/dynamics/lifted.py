@@ -85,24 +85,30 @@ def to_window_frame(states: np.ndarray, state_names: Sequence[str], layout: Pose
         raise ValueError(f"expected windows of shape (..., T, {len(state_names)}), got {w.shape}")
     if lay.kind == "none":
         return w
-    p = list(lay.position)
-    dp = w[..., p] - w[..., :1, p]
     if lay.kind == "position":
-        w[..., p] = dp
+        p = _columns(lay.position)
+        w[..., p] = w[..., p] - w[..., :1, p]
         return w
+    i, j = lay.position
+    dx, dy = w[..., i] - w[..., :1, i], w[..., j] - w[..., :1, j]
     psi = unwrap_angles(w[..., lay.heading])
     psi0 = psi[..., :1]
     c, s = np.cos(psi0), np.sin(psi0)
-    w[..., p[0]] = c * dp[..., 0] + s * dp[..., 1]
-    w[..., p[1]] = -s * dp[..., 0] + c * dp[..., 1]
+    w[..., i] = c * dx + s * dy
+    w[..., j] = -s * dx + c * dy
     w[..., lay.heading] = psi - psi0
     return w
+
+
+def _columns(index: tuple[int, ...]) -> slice | list[int]:
+    """Column indices as a slice where they are consecutive (a view, no fancy indexing), else a list."""
+    return slice(index[0], index[-1] + 1) if list(index) == list(range(index[0], index[-1] + 1)) else list(index)
 
 
 def unwrap_angles(angles: np.ndarray) -> np.ndarray:
     """``np.unwrap(angles, axis=-1)`` (the same numbers, a new array); a sequence without a step of pi
     or more, the usual window, is returned as it is without np.unwrap's corrections (all zero there)."""
-    step = np.diff(angles, axis=-1)
+    step = angles[..., 1:] - angles[..., :-1]          # np.diff's steps
     if not (np.abs(step) < np.pi).all():
         return np.unwrap(angles, axis=-1)
     out = np.array(angles, dtype=np.float64)

@@ -25,3 +25,12 @@ def test_the_window_heading_is_np_unwraps_from_the_first_and_a_given_layout_chan
     psi = np.unwrap(w[:, 2])
     assert np.array_equal(to_window_frame(w, NAMES)[:, 2], psi - psi[0])
     assert np.array_equal(to_window_frame(w, NAMES, PoseLayout.of(NAMES)), to_window_frame(w, NAMES))
+
+
+@pytest.mark.parametrize("names", [("X", "Y", "Z", "vx", "vy", "vz"), ("vx", "X", "vy", "Y")])
+def test_a_position_window_is_relative_to_its_first_position(names):
+    w = np.random.default_rng(3).normal(size=(21, len(names)))
+    p = [names.index(n) for n in ("X", "Y", "Z") if n in names]
+    expected = w.copy()
+    expected[:, p] = w[:, p] - w[:1, p]
+    assert np.array_equal(to_window_frame(w, names), expected)
