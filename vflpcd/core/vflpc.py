@@ -234,10 +234,13 @@ class VFLPC(ControllerBase):
     def __init__(self, planner, model: LiftedLinearModel, params: VFLPCParams, limits: Limits,
                  body_radius: float, safety_margin: float, solver: HorizonSolver | None = None,
                  compensator: OnlineCompensator | None = None, name: str = "vflpc",
-                 state_names: Sequence[str] | None = None, period: float | None = None, solve_loop=None) -> None:
+                 state_names: Sequence[str] | None = None, period: float | None = None, solve_loop=None,
+                 path_loop=None) -> None:
         self.planner, self.model, self.params, self.limits = planner, model, params, limits
         """``period``: the control tick period (default the model's dt); ``limits.du_max`` is per tick;
-        ``solve_loop``: Eb-RHRL's iterations compiled (``EbRHRL``'s ``loop``; None: its numpy path)."""
+        ``solve_loop``: Eb-RHRL's iterations compiled (``EbRHRL``'s ``loop``; None: its numpy path);
+        ``path_loop``: the path projection's search compiled (``ReferencePath.arc_length_of``'s ``loop``)."""
+        self._path_loop = path_loop
         self.state_names = tuple(state_names) if state_names is not None else tuple(model.state_names)
         missing = [n for n in model.state_names if n not in self.state_names]
         if missing:
@@ -470,7 +473,7 @@ class VFLPC(ControllerBase):
         if obstacles:
             _check_obstacles(obstacles, self.dim)
         pos, vel = self._position(state), self._velocity(state)
-        self._s = self.planner.path.arc_length_of(pos, self._s)
+        self._s = self.planner.path.arc_length_of(pos, self._s, loop=self._path_loop)
         heading = float(state[self.errors.layout.heading]) if self.dim == 2 else None
         self._last_inputs = (pos, vel, heading, obstacles)
         return state, obstacles, pos, vel
