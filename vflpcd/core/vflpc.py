@@ -265,6 +265,8 @@ class VFLPC(ControllerBase):
             self._vel_index = np.array([names.index(n) for n in ("vx", "vy", "vz")[: self.dim]])
         span = limits.u_max - limits.u_min        # a first command beyond this bound is a divergence (_solve_with)
         self._divergence_bound = params.divergence * np.where(np.isfinite(span), span, 1e6)
+        limited = np.isfinite(limits.du_max)    # the rate-limited inputs and their bound (_keeps_rate)
+        self._rate_check = (limited, limits.du_max[limited] * (1.0 + 1e-9))
         self.errors = em = ErrorModel(model, params.Q_x, params.q_lift, params.R, params.gamma, self.N, limits,
                                       compensator.comp if compensator is not None else None,
                                       gp_jacobians=params.gp_linearisation == "gp")
@@ -593,9 +595,9 @@ class VFLPC(ControllerBase):
         """Whether the planned increments v (N, n_u) of u~ move the command u = u_r + u~ by at most
         the rate limit du_max at every step (u~_{-1} = u_prev - u_r,0, so step 0 moves it by v_0)."""
         du = v.copy()
-        du[1:] += np.diff(problem.u_ref, axis=0)
-        limited = np.isfinite(self.limits.du_max)
-        return bool(np.all(np.abs(du[:, limited]) <= self.limits.du_max[limited] * (1.0 + 1e-9)))
+        du[1:] += problem.u_ref[1:] - problem.u_ref[:-1]
+        limited, bound = self._rate_check
+        return bool((np.abs(du[:, limited]) <= bound).all())
 
     def _barrier(self, frame: TickFrame, p_world: np.ndarray, pos, vel, t: float, obstacles) -> HorizonBarrier:
         self.last_threats = ()

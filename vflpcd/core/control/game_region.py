@@ -31,8 +31,9 @@ def bup_angle(v_p, v_e) -> np.ndarray:
     """s_bar = arccos(-v_p / v_e) in [pi/2, pi]; v_p (K,) pursuer speeds, v_e evader speed >= 0.
     A pursuer as fast as or faster than the evader (or an evader at rest) gives pi."""
     v_p = np.abs(np.asarray(v_p, float))
-    ratio = np.where(v_e > V_EVADER_MIN, v_p / max(float(v_e), V_EVADER_MIN), np.inf)
-    return np.arccos(-np.clip(ratio, 0.0, 1.0))
+    if not v_e > V_EVADER_MIN:
+        return np.arccos(np.full_like(v_p, -1.0))
+    return np.arccos(-np.minimum(np.maximum(v_p / float(v_e), 0.0), 1.0))
 
 
 def in_region(zeta: np.ndarray, l: np.ndarray, l_safe: float, s_bar: np.ndarray) -> np.ndarray:
@@ -42,10 +43,11 @@ def in_region(zeta: np.ndarray, l: np.ndarray, l_safe: float, s_bar: np.ndarray)
     X, Y = zeta[:, 0], zeta[:, 1]
     l, s_bar = _per_pursuer(l, X.shape), _per_pursuer(s_bar, X.shape)
     sin_s, cos_s = np.sin(s_bar), np.cos(s_bar)
+    l_sin, y_cos, x_sin = l * sin_s, Y * cos_s, X * sin_s
     e1 = np.hypot(X, Y) <= l + l_safe
-    h1 = (X <= -l * sin_s) & (Y * cos_s - X * sin_s <= l)
-    h2 = (X >= l * sin_s) & (Y * cos_s + X * sin_s <= l)
-    inner = np.abs(X) < l * sin_s
+    h1 = (X <= -l_sin) & (y_cos - x_sin <= l)
+    h2 = (X >= l_sin) & (y_cos + x_sin <= l)
+    inner = np.abs(X) < l_sin
     h3 = inner & (Y >= -np.sqrt(np.maximum(l * l - X * X, 0.0)))
     return e1 & (h1 | h2 | h3)
 
