@@ -4,9 +4,9 @@ Core stays pure (numpy and scipy only, no files): it writes a loop as plain Pyth
 (``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.path_kernel.nearest_segment``)
 and takes the compiled function as an argument. This module compiles each once per process, with
 numba's on-disk cache (beside the source, or numba's user-wide cache where that is read-only, or
-``$NUMBA_CACHE_DIR``; the systemd unit sets it), so a later process loads it in milliseconds; with no writable place it compiles in
-memory at every start. Without numba ``ebrhrl_loop()`` and ``path_loop()`` return None and their
-users run their numpy paths.
+``$NUMBA_CACHE_DIR``; the systemd unit sets it), so a later process loads it in milliseconds;
+with no writable place it compiles in memory at every start. Without numba ``ebrhrl_loop()`` and
+``path_loop()`` return None and their users run their numpy paths.
 """
 
 from __future__ import annotations

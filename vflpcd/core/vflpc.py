@@ -540,7 +540,8 @@ class VFLPC(ControllerBase):
     def _reference(self, t: float) -> np.ndarray:
         """World reference states (N + 1, n_x) at t + tau dt, in the model's state order."""
         planar = self.errors.layout.kind == "planar"
-        smp = self._plan.trajectory.sample(t + self._horizon_offsets, ("psi", "v", "omega", "pos") if planar else ("v", "pos"))
+        series = ("psi", "v", "omega", "pos") if planar else ("v", "pos")
+        smp = self._plan.trajectory.sample(t + self._horizon_offsets, series)
         if planar:
             cols = {"X": smp["pos"][:, 0], "Y": smp["pos"][:, 1], "psi": smp["psi"], "yaw": smp["psi"],
                     "vx": smp["v"], "omega": smp["omega"]}
