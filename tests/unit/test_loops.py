@@ -50,3 +50,15 @@ def test_the_loop_is_loaded_before_the_first_tick_for_the_types_the_solver_passe
     assert ctrl.solver.loop is loop
     ctrl.step(np.array([0.0, 0.3, 0.0, 5.0, 0.0, 0.0]), 0.0)
     assert len(loop.signatures) == 1
+
+
+def test_the_path_loop_is_compiled_once_and_warmed_for_the_types_the_path_passes():
+    import numpy as np
+
+    loops.path_loop.cache_clear()
+    loop = loops.path_loop()
+    assert loop is not None and loops.path_loop() is loop and loop.__name__ == "nearest_segment"
+    assert len(loop.signatures) == 1
+    loop(np.array([0.5, 0.2]), np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([[1.0, 0.0]]), np.ones(1),
+         np.arange(0, 1))
+    assert len(loop.signatures) == 1

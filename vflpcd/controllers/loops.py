@@ -1,11 +1,12 @@
 """Core's loops compiled with numba (``njit``), for the controllers that run them.
 
 Core stays pure (numpy and scipy only, no files): it writes a loop as plain Python
-(``vflpcd.core.control.ebrhrl_kernel.solve_loop``) and takes the compiled function as an
-argument. This module compiles it once per process, with numba's on-disk cache (beside the
-source, or numba's user-wide cache where that is read-only, or ``$NUMBA_CACHE_DIR``; the systemd
-unit sets it), so a later process loads it in milliseconds; with no writable place it compiles in
-memory at every start. Without numba ``ebrhrl_loop()`` returns None and the solver runs its numpy path.
+(``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.path_kernel.nearest_segment``)
+and takes the compiled function as an argument. This module compiles each once per process, with
+numba's on-disk cache (beside the source, or numba's user-wide cache where that is read-only, or
+``$NUMBA_CACHE_DIR``; the systemd unit sets it), so a later process loads it in milliseconds;
+with no writable place it compiles in memory at every start. Without numba ``ebrhrl_loop()`` and
+``path_loop()`` return None and their users run their numpy paths.
 """
 
 from __future__ import annotations
@@ -18,24 +19,39 @@ log = logging.getLogger(__name__)
 
 @lru_cache(maxsize=1)
 def ebrhrl_loop():
-    """``solve_loop`` compiled and loaded (``_warm``), or None without numba."""
+    """``ebrhrl_kernel.solve_loop`` compiled and loaded (``_warm_ebrhrl``), or None without numba."""
+    from vflpcd.core.control.ebrhrl_kernel import solve_loop
+
+    return _compiled("ebrhrl", solve_loop, _warm_ebrhrl)
+
+
+@lru_cache(maxsize=1)
+def path_loop():
+    """``path_kernel.nearest_segment`` compiled and loaded (``_warm_path``), or None without numba."""
+    from vflpcd.core.path_kernel import nearest_segment
+
+    return _compiled("path", nearest_segment, _warm_path)
+
+
+def _compiled(name: str, fn, warm):
+    """fn compiled with numba's cache (in memory where none can be written) and warmed, or None
+    without numba (the caller's numpy path)."""
     try:
         from numba import njit
     except ImportError:
-        log.info("event=loop_interpreted loop=ebrhrl reason=numba is not installed (numpy path)")
+        log.info("event=loop_interpreted loop=%s reason=numba is not installed (numpy path)", name)
         return None
-    from vflpcd.core.control.ebrhrl_kernel import solve_loop
-
     try:
-        loop = njit(cache=True)(solve_loop)
+        loop = njit(cache=True)(fn)
     except RuntimeError as exc:          # no writable cache location (numba's "no locator available")
-        log.warning("event=loop_cache_unavailable loop=ebrhrl reason=%s (compiling in memory; set NUMBA_CACHE_DIR)", exc)
-        loop = njit(cache=False)(solve_loop)
-    _warm(loop)
+        log.warning("event=loop_cache_unavailable loop=%s reason=%s (compiling in memory; set NUMBA_CACHE_DIR)",
+                    name, exc)
+        loop = njit(cache=False)(fn)
+    warm(loop)
     return loop
 
 
-def _warm(loop) -> None:
+def _warm_ebrhrl(loop) -> None:
     """Compile (or load) the loop now, for the argument types EbRHRL passes, so that a controller's
     first tick does not pay for it (a daemon's first deadline)."""
     import numpy as np
@@ -44,3 +60,10 @@ def _warm(loop) -> None:
     loop(z((1, 1, 1)), z((1, 1, 1)), z((1, 1)), z(1), z((1, 1, 1)), z((1, 1)), z((1, 1)), z((1, 1)), z((1, 1, 1)),
          1.0, z((1, 1, 1)), z((2, 1, 1)), z(1), z((1, 1)), z(1), z(1, np.int64), z((2, 1)), z((0, 2, 1)),
          z((0, 2, 1)), z(0), 1.0, 1.0, 1, 1e-8, 1e-2)
+
+
+def _warm_path(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``ReferencePath.arc_length_of`` passes."""
+    import numpy as np
+
+    loop(np.zeros(2), np.zeros((2, 2)), np.ones((1, 2)), np.ones(1), np.zeros(1, np.int64))

@@ -35,4 +35,5 @@ class ObstacleState:
 
     @property
     def moving(self) -> bool:
-        return bool(np.any(self.velocity != 0.0))
+        """Whether any velocity component is non-zero."""
+        return any(self.velocity.tolist())

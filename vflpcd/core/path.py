@@ -170,43 +170,67 @@ class ReferencePath:
         progress monotone where a path passes near itself (a closed track, a hairpin).
         """
         p = np.asarray(p, dtype=float)
+        s, point, d2 = self._nearest(p, s_hint, back, ahead)
+        tangent = self.tangent_at(s)  # vertex tangents interpolated: smooth along the path
+        heading = float(np.arctan2(tangent[1], tangent[0]))
+        if self.dim == 2:
+            lateral = float((p[0] - point[0]) * np.sin(heading) - (p[1] - point[1]) * np.cos(heading))
+        else:
+            lateral = float(np.sqrt(d2))
+        return Projection(s=s, point=point, tangent=tangent, heading=heading, lateral=lateral)
+
+    def arc_length_of(self, p, s_hint: float | None = None, back: float = 10.0, ahead: float = 30.0,
+                      loop=None) -> float:
+        """The arc length s of ``project(p, s_hint, back, ahead)`` alone (no tangent, heading or lateral
+        error). ``loop``: ``path_kernel.nearest_segment`` compiled (``vflpcd.controllers.loops``), which
+        searches a planar path's stretch (the same numbers); None, or a 3-D path: the numpy search."""
+        p = np.asarray(p, dtype=float)
+        if loop is None or self.dim != 2:
+            return self._nearest(p, s_hint, back, ahead)[0]
+        idx = self._searched(s_hint, back, ahead)
+        if isinstance(idx, slice):
+            idx = np.arange(idx.start, idx.stop)
+        i, w = loop(p, self.points, self._seg_vec, self._seg_len2, idx)
+        return float(self.s[i] + w * np.sqrt(self._seg_len2[i]))
+
+    def _searched(self, s_hint: float | None, back: float, ahead: float) -> slice | np.ndarray:
+        """The segments that ``project`` searches: all without s_hint, else those overlapping
+        [s_hint - back, s_hint + ahead] (a slice on an open path, indices on a closed one)."""
         if s_hint is None:
-            idx = slice(0, len(self._seg_vec))
-        elif not self.closed:                 # the segments overlapping [lo, lo + span]: s is sorted
-            lo, span = s_hint - back, back + ahead
+            return slice(0, len(self._seg_vec))
+        lo, span = s_hint - back, back + ahead
+        if not self.closed:                   # s is sorted
             i0 = int(np.searchsorted(self.s[1:], lo, side="left"))
             i1 = int(np.searchsorted(self.s[:-1], lo + span, side="right"))
             if i1 <= i0:
                 i0 = len(self._seg_vec) - 1 if lo > 0 else 0
                 i1 = i0 + 1
-            idx = slice(i0, i1)
+            return slice(i0, i1)
+        starts, ends = self.s[:-1], self.s[1:]
+        if span < self.length:                # modulo the length
+            rel_start = np.mod(starts - lo, self.length)
+            rel_end = np.mod(ends - lo, self.length)
+            idx = np.nonzero((rel_start <= span) | (rel_end <= span) | (rel_end < rel_start))[0]
         else:
-            lo, span = s_hint - back, back + ahead
-            starts, ends = self.s[:-1], self.s[1:]
-            if span < self.length:            # a closed path: segments overlapping [lo, lo + span] modulo the length
-                rel_start = np.mod(starts - lo, self.length)
-                rel_end = np.mod(ends - lo, self.length)
-                idx = np.nonzero((rel_start <= span) | (rel_end <= span) | (rel_end < rel_start))[0]
-            else:
-                idx = np.arange(len(self._seg_vec))
-            if idx.size == 0:
-                idx = np.array([len(self._seg_vec) - 1 if lo > 0 else 0])
+            idx = np.arange(len(self._seg_vec))
+        if idx.size == 0:
+            idx = np.array([len(self._seg_vec) - 1 if lo > 0 else 0])
+        return idx
+
+    def _nearest(self, p: np.ndarray, s_hint: float | None, back: float, ahead: float
+                 ) -> tuple[float, np.ndarray, float]:
+        """Arc length, point (d,) and squared distance of the nearest point of the searched stretch (``project``)."""
+        idx = self._searched(s_hint, back, ahead)
         a = self.points[idx]
         v = self._seg_vec[idx]
-        w = np.clip(np.einsum("ij,ij->i", p - a, v) / self._seg_len2[idx], 0.0, 1.0)
+        w = np.minimum(np.maximum(np.einsum("ij,ij->i", p - a, v) / self._seg_len2[idx], 0.0), 1.0)
         foot = a + w[:, None] * v
-        d2 = np.einsum("ij,ij->i", p - foot, p - foot)
+        e = p - foot
+        d2 = np.einsum("ij,ij->i", e, e)
         k = int(np.argmin(d2))
         i = idx.start + k if isinstance(idx, slice) else int(idx[k])
         s = float(self.s[i] + w[k] * np.sqrt(self._seg_len2[i]))
-        tangent = self.tangent_at(s)  # vertex tangents interpolated: smooth along the path
-        point = foot[k]
-        heading = float(np.arctan2(tangent[1], tangent[0]))
-        if self.dim == 2:
-            lateral = float((p[0] - point[0]) * np.sin(heading) - (p[1] - point[1]) * np.cos(heading))
-        else:
-            lateral = float(np.sqrt(d2[k]))
-        return Projection(s=s, point=point, tangent=tangent, heading=heading, lateral=lateral)
+        return s, foot[k], float(d2[k])
 
 
 def progress_delta(path: ReferencePath, s_new: float, s_old: float) -> float:

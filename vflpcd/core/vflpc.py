@@ -33,6 +33,7 @@ out the due replan as a picklable ``ReplanJob``, ``plan_job(planner, job)`` runs
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from typing import Protocol, Sequence
 
@@ -45,9 +46,10 @@ from vflpcd.core.control.game_region import threats
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
 from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
-from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
+from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout, to_window_frame
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.norms import row_norms, vector_norm
 from vflpcd.core.path import nearest_on_polyline
 from vflpcd.core.ports import ControllerBase, ControllerStatus
 
@@ -164,6 +166,24 @@ class VFLPCParams:
 
 
 
+def unit_differences(points: np.ndarray) -> np.ndarray:
+    """The unit directions (T, d) along points (T >= 2, d): central differences inside, one-sided at the
+    ends (``np.gradient(points, axis=0)``, the same numbers), normalised (a zero difference stays ~0)."""
+    diff = np.empty_like(points)
+    diff[1:-1] = (points[2:] - points[:-2]) / 2.0
+    diff[0] = points[1] - points[0]
+    diff[-1] = points[-1] - points[-2]
+    return diff / np.maximum(row_norms(diff, keepdims=True), 1e-9)
+
+
+def _check_obstacles(obstacles: Sequence[ObstacleState], dim: int) -> None:
+    """Raise ValueError unless every obstacle's centre and velocity are ``dim`` finite numbers."""
+    for o in obstacles:
+        if (o.center.shape != (dim,) or o.velocity.shape != (dim,)
+                or not all(map(math.isfinite, o.center.tolist() + o.velocity.tolist()))):
+            raise ValueError(f"obstacle {o.id!r}: centre and velocity must be {dim} finite numbers")
+
+
 def _velocities(obstacles: Sequence[ObstacleState]) -> dict[str, np.ndarray]:
     """The obstacle picture a replan is made for: each obstacle's velocity by id."""
     return {o.id: o.velocity for o in obstacles}
@@ -214,15 +234,18 @@ class VFLPC(ControllerBase):
     def __init__(self, planner, model: LiftedLinearModel, params: VFLPCParams, limits: Limits,
                  body_radius: float, safety_margin: float, solver: HorizonSolver | None = None,
                  compensator: OnlineCompensator | None = None, name: str = "vflpc",
-                 state_names: Sequence[str] | None = None, period: float | None = None, solve_loop=None) -> None:
+                 state_names: Sequence[str] | None = None, period: float | None = None, solve_loop=None,
+                 path_loop=None) -> None:
         self.planner, self.model, self.params, self.limits = planner, model, params, limits
         """``period``: the control tick period (default the model's dt); ``limits.du_max`` is per tick;
-        ``solve_loop``: Eb-RHRL's iterations compiled (``EbRHRL``'s ``loop``; None: its numpy path)."""
+        ``solve_loop``: Eb-RHRL's iterations compiled (``EbRHRL``'s ``loop``; None: its numpy path);
+        ``path_loop``: the path projection's search compiled (``ReferencePath.arc_length_of``'s ``loop``)."""
+        self._path_loop = path_loop
         self.state_names = tuple(state_names) if state_names is not None else tuple(model.state_names)
         missing = [n for n in model.state_names if n not in self.state_names]
         if missing:
             raise ValueError(f"the platform state {self.state_names} lacks the model's {missing}")
-        self._select = [self.state_names.index(n) for n in model.state_names]
+        self._select = np.array([self.state_names.index(n) for n in model.state_names])
         self.name = name
         self.dt = model.dt
         self.period = float(period) if period is not None else self.dt
@@ -232,7 +255,18 @@ class VFLPC(ControllerBase):
                              f"for the GP to learn model-step transitions")
         self._observe_every = max(1, int(round(every)))
         self.N = max(1, int(round(params.horizon_s / self.dt)))
+        self._horizon_offsets = self.dt * np.arange(self.N + 1)     # tau dt, tau = 0 .. N
         self.dim = planner.dim
+        names, layout = model.state_names, PoseLayout.of(model.state_names)
+        self._pos_index = np.array(layout.position)
+        if layout.kind == "planar":                     # heading, body velocities
+            self._vel_index = np.array([layout.heading, names.index("vx"), names.index("vy")])
+        else:                                           # world velocities
+            self._vel_index = np.array([names.index(n) for n in ("vx", "vy", "vz")[: self.dim]])
+        span = limits.u_max - limits.u_min        # a first command beyond this bound is a divergence (_solve_with)
+        self._divergence_bound = params.divergence * np.where(np.isfinite(span), span, 1e6)
+        limited = np.isfinite(limits.du_max)    # the rate-limited inputs and their bound (_keeps_rate)
+        self._rate_check = (limited, limits.du_max[limited] * (1.0 + 1e-9))
         self.errors = em = ErrorModel(model, params.Q_x, params.q_lift, params.R, params.gamma, self.N, limits,
                                       compensator.comp if compensator is not None else None,
                                       gp_jacobians=params.gp_linearisation == "gp")
@@ -309,7 +343,7 @@ class VFLPC(ControllerBase):
         self._guidance(pos, vel, state, t, obstacles)
         ref = self._reference(t)
         frame = self.errors.frame(state, ref)
-        p_ref_world = ref[:, list(self.errors.layout.position)]
+        p_ref_world = ref[:, self._pos_index]
         observe_now = self._ticks % self._observe_every == 0
         self._ticks += 1
         if observe_now:
@@ -325,8 +359,8 @@ class VFLPC(ControllerBase):
         else:
             u_tilde0 = self._solve(problem, barrier, self.errors.K_terminal)
         u = problem.u_ref[0] + u_tilde0
-        u = np.clip(u, self.limits.u_min, self.limits.u_max)
-        u = np.clip(u, u_prev - self.limits.du_max, u_prev + self.limits.du_max)
+        u = np.minimum(np.maximum(u, self.limits.u_min), self.limits.u_max)            # magnitude limits
+        u = np.minimum(np.maximum(u, u_prev - self.limits.du_max), u_prev + self.limits.du_max)   # rate limits
         self.solver.shift()
         self._u_prev = u
         if observe_now:
@@ -434,15 +468,14 @@ class VFLPC(ControllerBase):
     def _inputs(self, state: np.ndarray, obstacles: Sequence[ObstacleState]):
         """Checked model state, obstacles, position and velocity; remembers them for a forced replan."""
         state = np.asarray(state, float)
-        if state.shape != (len(self.state_names),) or not np.all(np.isfinite(state)):
+        if state.shape != (len(self.state_names),) or not np.isfinite(state).all():
             raise ValueError(f"state must be {len(self.state_names)} finite numbers {self.state_names}, got {state!r}")
         state = state[self._select]
         obstacles = tuple(obstacles)
-        for o in obstacles:
-            if not (np.all(np.isfinite(o.center)) and np.all(np.isfinite(o.velocity))) or o.center.shape != (self.dim,):
-                raise ValueError(f"obstacle {o.id!r}: centre and velocity must be {self.dim} finite numbers")
+        if obstacles:
+            _check_obstacles(obstacles, self.dim)
         pos, vel = self._position(state), self._velocity(state)
-        self._s = self.planner.path.project(pos, self._s).s
+        self._s = self.planner.path.arc_length_of(pos, self._s, loop=self._path_loop)
         heading = float(state[self.errors.layout.heading]) if self.dim == 2 else None
         self._last_inputs = (pos, vel, heading, obstacles)
         return state, obstacles, pos, vel
@@ -459,14 +492,14 @@ class VFLPC(ControllerBase):
         return float(np.arctan2(vel[1], vel[0]))
 
     def _position(self, state: np.ndarray) -> np.ndarray:
-        return state[list(self.errors.layout.position)]
+        return state[self._pos_index]
 
     def _velocity(self, state: np.ndarray) -> np.ndarray:
-        names = self.model.state_names
         if self.errors.layout.kind == "planar":
-            psi, vx, vy = state[self.errors.layout.heading], state[names.index("vx")], state[names.index("vy")]
-            return np.array([vx * np.cos(psi) - vy * np.sin(psi), vx * np.sin(psi) + vy * np.cos(psi)])
-        return state[[names.index(n) for n in ("vx", "vy", "vz")[: self.dim]]]
+            psi, vx, vy = state[self._vel_index]
+            c, s = np.cos(psi), np.sin(psi)
+            return np.array([vx * c - vy * s, vx * s + vy * c])
+        return state[self._vel_index]
 
     def _changed(self, obstacles: Sequence[ObstacleState]) -> bool:
         """Whether the obstacle picture differs (an obstacle appeared or went, or its velocity changed
@@ -480,7 +513,7 @@ class VFLPC(ControllerBase):
         sig = _velocities(obstacles)
         if sig.keys() != ref.keys():
             return True
-        return any(np.linalg.norm(sig[k] - ref[k]) > self.params.velocity_change for k in sig)
+        return any(vector_norm(sig[k] - ref[k]) > self.params.velocity_change for k in sig)
 
     def _guidance(self, pos, vel, state, t: float, obstacles) -> None:
         """Replan now if there is no reference yet, else leave a due replan to ``background``."""
@@ -506,20 +539,19 @@ class VFLPC(ControllerBase):
 
     def _reference(self, t: float) -> np.ndarray:
         """World reference states (N + 1, n_x) at t + tau dt, in the model's state order."""
-        traj = self._plan.trajectory
-        smp = traj.sample(t + self.dt * np.arange(self.N + 1))
-        names = self.model.state_names
-        out = np.zeros((self.N + 1, self.model.n_x))
-        if self.errors.layout.kind == "planar":
+        planar = self.errors.layout.kind == "planar"
+        series = ("psi", "v", "omega", "pos") if planar else ("v", "pos")
+        smp = self._plan.trajectory.sample(t + self._horizon_offsets, series)
+        if planar:
             cols = {"X": smp["pos"][:, 0], "Y": smp["pos"][:, 1], "psi": smp["psi"], "yaw": smp["psi"],
                     "vx": smp["v"], "omega": smp["omega"]}
         else:
-            tangent = np.gradient(smp["pos"], axis=0)
-            tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
+            tangent = unit_differences(smp["pos"])
             v = tangent * smp["v"][:, None]
             cols = {"X": smp["pos"][:, 0], "Y": smp["pos"][:, 1], "Z": smp["pos"][:, 2],
                     "vx": v[:, 0], "vy": v[:, 1], "vz": v[:, 2]}
-        for j, name in enumerate(names):
+        out = np.zeros((self.N + 1, self.model.n_x))
+        for j, name in enumerate(self.model.state_names):
             if name in cols:
                 out[:, j] = cols[name]
         return out
@@ -564,13 +596,13 @@ class VFLPC(ControllerBase):
         """Whether the planned increments v (N, n_u) of u~ move the command u = u_r + u~ by at most
         the rate limit du_max at every step (u~_{-1} = u_prev - u_r,0, so step 0 moves it by v_0)."""
         du = v.copy()
-        du[1:] += np.diff(problem.u_ref, axis=0)
-        limited = np.isfinite(self.limits.du_max)
-        return bool(np.all(np.abs(du[:, limited]) <= self.limits.du_max[limited] * (1.0 + 1e-9)))
+        du[1:] += problem.u_ref[1:] - problem.u_ref[:-1]
+        limited, bound = self._rate_check
+        return bool((np.abs(du[:, limited]) <= bound).all())
 
     def _barrier(self, frame: TickFrame, p_world: np.ndarray, pos, vel, t: float, obstacles) -> HorizonBarrier:
         self.last_threats = ()
-        idx = np.array(self.errors.layout.position)
+        idx = self._pos_index
         p_ref = frame.x_r[:, idx]
         p = self.params
         if not obstacles or p.mu == 0.0 or p.max_threats == 0:
@@ -582,11 +614,11 @@ class VFLPC(ControllerBase):
         centers = np.array([o.center_at(t) for o in obstacles])
         l = np.array([o.shape.bounding_radius() for o in obstacles]) + grow
         mask = threats(pos, vel, centers, np.array([o.velocity for o in obstacles]), l, p.l_safe)
-        chosen = sorted(np.flatnonzero(mask), key=lambda i: np.linalg.norm(centers[i] - pos))[: p.max_threats]
+        chosen = sorted(np.flatnonzero(mask), key=lambda i: vector_norm(centers[i] - pos))[: p.max_threats]
         self.last_threats = tuple(obstacles[i].id for i in chosen)
         if not chosen:
             return no_barrier(idx, p_ref)
-        times = t + self.dt * np.arange(self.N + 1)
+        times = t + self._horizon_offsets
         xs, ns = [], []
         for i in chosen:
             x_p, n_p = safety_points(obstacles[i], p_world, times, grow)
@@ -602,15 +634,13 @@ class VFLPC(ControllerBase):
     def _solve_with(self, solver, problem: HorizonProblem, barrier: HorizonBarrier) -> np.ndarray | None:
         """``solver``'s plan u~ (N, n_u) of ``problem``; None (counted in ``fallbacks``, the solver
         reset) when it fails or diverges."""
-        span = self.limits.u_max - self.limits.u_min
-        bound = self.params.divergence * np.where(np.isfinite(span), span, 1e6)
         try:
             u_tilde, info = solver.solve(problem, barrier)
             self.last_info = info
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             log.warning("event=solver_error reason=%s", exc)
             u_tilde = None
-        if u_tilde is None or not np.all(np.isfinite(u_tilde[0])) or np.any(np.abs(u_tilde[0]) > bound):
+        if u_tilde is None or not np.isfinite(u_tilde[0]).all() or (np.abs(u_tilde[0]) > self._divergence_bound).any():
             self.fallbacks += 1
             solver.reset()
             return None

@@ -1,3 +1,5 @@
+import importlib.util
+
 import numpy as np
 import pytest
 
@@ -53,3 +55,37 @@ def test_bad_points_raise():
         ReferencePath(np.array([[0.0, 0.0], [np.nan, 1.0]]))
     with pytest.raises(ValueError):
         ReferencePath.from_waypoints(np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 1.0]]))
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_arc_length_of_is_the_projections_arc_length(closed):
+    path = ReferencePath.arc([0.0, 0.0], 20.0, 0.0, 2 * np.pi if closed else np.pi)
+    rng = np.random.default_rng(0)
+    for s_hint in (None, *rng.uniform(0.0, path.length, 20)):
+        p = path.point_at(rng.uniform(0.0, path.length)) + rng.normal(size=2)
+        assert path.arc_length_of(p, s_hint) == path.project(p, s_hint).s
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_the_nearest_segment_loop_gives_the_numpy_searchs_arc_length(closed):
+    """path_kernel.nearest_segment, run as Python and compiled, finds the numpy search's arc length
+    on planar paths (the same numbers: within 1e-12 required, equal found)."""
+    from vflpcd.core.path_kernel import nearest_segment
+
+    loops = [nearest_segment]
+    if importlib.util.find_spec("numba") is not None:
+        from vflpcd.controllers.loops import path_loop
+
+        loops.append(path_loop())
+    rng = np.random.default_rng(5)
+    wp = np.cumsum(rng.uniform(2.0, 6.0, size=(12, 2)) * [1.0, 0.5], axis=0) * [1.0, rng.choice([-1, 1])]
+    path = ReferencePath.from_waypoints(wp if not closed else np.vstack([wp, wp[::-1][1:-1] + [0.0, 8.0]]),
+                                        closed=closed)
+    for _ in range(60):
+        s_hint = rng.choice([None, rng.uniform(0.0, path.length)])
+        p = path.point_at(rng.uniform(0.0, path.length)) + rng.normal(size=2) * rng.choice([0.01, 1.0, 10.0])
+        expected = path.arc_length_of(p, s_hint)
+        for loop in loops:
+            got = path.arc_length_of(p, s_hint, loop=loop)
+            assert abs(got - expected) <= 1e-12 and got == expected
+    assert path.arc_length_of(path.points[3], None, loop=nearest_segment) == path.project(path.points[3]).s

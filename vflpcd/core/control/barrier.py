@@ -75,8 +75,9 @@ class HorizonBarrier:
     length: float = 1.0
 
     def __post_init__(self) -> None:
-        if not (np.all(np.isfinite(self.x_p)) and np.all(np.isfinite(self.normal))
-                and np.all(np.isfinite(self.mu)) and np.all(self.mu >= 0.0) and self.length > 0.0):
+        empty = self.x_p.size == 0 and self.normal.size == 0 and self.mu.size == 0     # no obstacle: nothing to check
+        if not (self.length > 0.0 and (empty or (np.isfinite(self.x_p).all() and np.isfinite(self.normal).all()
+                                                 and np.isfinite(self.mu).all() and (self.mu >= 0.0).all()))):
             raise ValueError("barrier points, normals and mu must be finite, mu >= 0 and length > 0")
 
     @property

@@ -87,10 +87,11 @@ class ErrorModel:
         self._A_N = np.broadcast_to(self.A, (self.N, self.n, self.n))
         self._B_N = np.broadcast_to(self.B, (self.N, self.n, model.n_u))
         self.layout = PoseLayout.of(model.state_names)
+        self._no_G, self._no_g = np.zeros((self.N + 1, 0, self.n)), np.zeros((self.N + 1, 0))   # no half-planes (empty)
 
     def frame(self, state: np.ndarray, reference: np.ndarray) -> TickFrame:
         """Window frame of the world state (n_x,) and world reference (N + 1, n_x), lifted."""
-        window = to_window_frame(np.vstack([state, reference]), self.model.state_names)
+        window = to_window_frame(np.vstack([state, reference]), self.model.state_names, self.layout)
         U = self.model.lift(window)
         return TickFrame(np.asarray(state, float), U[0], U[1:], window[1:])
 
@@ -100,7 +101,7 @@ class ErrorModel:
         U_r = frame.U_r
         pred = U_r[:-1] @ m.A.T                                           # (N, n_K)
         u_r = (U_r[1:, : m.n_x] - pred[:, : m.n_x]) @ self._B_x_pinv.T
-        u_r = np.clip(u_r, lim.u_min, lim.u_max)
+        u_r = np.minimum(np.maximum(u_r, lim.u_min), lim.u_max)          # clipped into the limits
         nxt = pred + u_r @ m.B.T
         if gp is not None and self.comp is not None:
             z = self.comp.gp_input(U_r[:-1], u_r)
@@ -115,8 +116,7 @@ class ErrorModel:
         x0 = (frame.U - U_r[0])[:-1]
         return HorizonProblem(A=A, B=B, c=c, x0=x0, Q=self.Q, R=self.R, P=self.P, gamma=self.gamma, u_ref=u_r,
                               u_min=lim.u_min, u_max=lim.u_max, du_max=lim.du_max,
-                              u_prev=np.asarray(u_prev, float), G=np.zeros((N + 1, 0, self.n)),
-                              g=np.zeros((N + 1, 0)))
+                              u_prev=np.asarray(u_prev, float), G=self._no_G, g=self._no_g)
 
     def to_window(self, frame: TickFrame, points: np.ndarray, vectors: bool = False) -> np.ndarray:
         """World points (or direction vectors) (..., d) -> the tick's window frame."""

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vflpcd.core.norms import row_norms, vector_norm
+
 V_EVADER_MIN = 1e-3  # m/s: below this the evader has no velocity frame
 
 
@@ -29,8 +31,9 @@ def bup_angle(v_p, v_e) -> np.ndarray:
     """s_bar = arccos(-v_p / v_e) in [pi/2, pi]; v_p (K,) pursuer speeds, v_e evader speed >= 0.
     A pursuer as fast as or faster than the evader (or an evader at rest) gives pi."""
     v_p = np.abs(np.asarray(v_p, float))
-    ratio = np.where(v_e > V_EVADER_MIN, v_p / max(float(v_e), V_EVADER_MIN), np.inf)
-    return np.arccos(-np.clip(ratio, 0.0, 1.0))
+    if not v_e > V_EVADER_MIN:
+        return np.arccos(np.full_like(v_p, -1.0))
+    return np.arccos(-np.minimum(np.maximum(v_p / float(v_e), 0.0), 1.0))
 
 
 def in_region(zeta: np.ndarray, l: np.ndarray, l_safe: float, s_bar: np.ndarray) -> np.ndarray:
@@ -38,15 +41,21 @@ def in_region(zeta: np.ndarray, l: np.ndarray, l_safe: float, s_bar: np.ndarray)
     (or scalar), margin l_safe and BUP angles s_bar (K,) (or scalar). Returns (K,) bool."""
     zeta = np.atleast_2d(np.asarray(zeta, float))
     X, Y = zeta[:, 0], zeta[:, 1]
-    l = np.broadcast_to(np.asarray(l, float), X.shape)
-    s_bar = np.broadcast_to(np.asarray(s_bar, float), X.shape)
+    l, s_bar = _per_pursuer(l, X.shape), _per_pursuer(s_bar, X.shape)
     sin_s, cos_s = np.sin(s_bar), np.cos(s_bar)
+    l_sin, y_cos, x_sin = l * sin_s, Y * cos_s, X * sin_s
     e1 = np.hypot(X, Y) <= l + l_safe
-    h1 = (X <= -l * sin_s) & (Y * cos_s - X * sin_s <= l)
-    h2 = (X >= l * sin_s) & (Y * cos_s + X * sin_s <= l)
-    inner = np.abs(X) < l * sin_s
+    h1 = (X <= -l_sin) & (y_cos - x_sin <= l)
+    h2 = (X >= l_sin) & (y_cos + x_sin <= l)
+    inner = np.abs(X) < l_sin
     h3 = inner & (Y >= -np.sqrt(np.maximum(l * l - X * X, 0.0)))
     return e1 & (h1 | h2 | h3)
+
+
+def _per_pursuer(value, shape: tuple[int, ...]) -> np.ndarray:
+    """A scalar or per-pursuer value as an array of ``shape`` (K,) (a view when it is one already)."""
+    value = np.asarray(value, float)
+    return value if value.shape == shape else np.broadcast_to(value, shape)
 
 
 def evader_frame(relative: np.ndarray, evader_velocity: np.ndarray) -> np.ndarray:
@@ -56,11 +65,12 @@ def evader_frame(relative: np.ndarray, evader_velocity: np.ndarray) -> np.ndarra
     (X_e, Y_e) serves the planar and the 3-D robot (E_p rotated about the velocity axis)."""
     v = np.asarray(evader_velocity, float)
     rel = np.atleast_2d(np.asarray(relative, float))
-    speed = float(np.linalg.norm(v))
+    speed = vector_norm(v)
     ey = v / speed if speed > V_EVADER_MIN else np.eye(len(v))[1]
-    Y = rel @ ey
-    X = np.linalg.norm(rel - Y[:, None] * ey[None, :], axis=1)
-    return np.column_stack([X, Y])
+    zeta = np.empty((len(rel), 2))
+    zeta[:, 1] = Y = rel @ ey
+    zeta[:, 0] = row_norms(rel - Y[:, None] * ey[None, :])
+    return zeta
 
 
 def threats(robot_position: np.ndarray, robot_velocity: np.ndarray, centers: np.ndarray,
@@ -71,9 +81,9 @@ def threats(robot_position: np.ndarray, robot_velocity: np.ndarray, centers: np.
     if centers.shape[0] == 0:
         return np.zeros(0, dtype=bool)
     robot_velocity = np.asarray(robot_velocity, float)
-    v_e = float(np.linalg.norm(robot_velocity))
+    v_e = vector_norm(robot_velocity)
     zeta = evader_frame(centers - np.asarray(robot_position, float), robot_velocity)
     if v_e <= V_EVADER_MIN:
         return np.hypot(zeta[:, 0], zeta[:, 1]) <= np.asarray(l, float) + l_safe
-    s_bar = bup_angle(np.linalg.norm(np.atleast_2d(np.asarray(velocities, float)), axis=1), v_e)
+    s_bar = bup_angle(row_norms(np.atleast_2d(np.asarray(velocities, float))), v_e)
     return in_region(zeta, l, l_safe, s_bar)

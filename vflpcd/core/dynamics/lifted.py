@@ -74,28 +74,46 @@ class PoseLayout:
         return cls("none", (), None)
 
 
-def to_window_frame(states: np.ndarray, state_names: Sequence[str]) -> np.ndarray:
+def to_window_frame(states: np.ndarray, state_names: Sequence[str], layout: PoseLayout | None = None) -> np.ndarray:
     """World-frame windows (..., T, n_x) -> the same windows in their first pose's frame (..., T, n_x).
 
-    ``state_names`` (n_x,) name the columns and decide the convention (module docstring)."""
+    ``state_names`` (n_x,) name the columns and decide the convention (module docstring);
+    ``layout``: their ``PoseLayout`` when at hand (a caller that converts every tick keeps it)."""
     w = np.array(states, dtype=np.float64)  # copy
-    lay = PoseLayout.of(state_names)
+    lay = PoseLayout.of(state_names) if layout is None else layout
     if w.ndim < 2 or w.shape[-1] != len(state_names):
         raise ValueError(f"expected windows of shape (..., T, {len(state_names)}), got {w.shape}")
     if lay.kind == "none":
         return w
-    p = list(lay.position)
-    dp = w[..., p] - w[..., :1, p]
     if lay.kind == "position":
-        w[..., p] = dp
+        p = _columns(lay.position)
+        w[..., p] = w[..., p] - w[..., :1, p]
         return w
-    psi = np.unwrap(w[..., lay.heading], axis=-1)
+    i, j = lay.position
+    dx, dy = w[..., i] - w[..., :1, i], w[..., j] - w[..., :1, j]
+    psi = unwrap_angles(w[..., lay.heading])
     psi0 = psi[..., :1]
     c, s = np.cos(psi0), np.sin(psi0)
-    w[..., p[0]] = c * dp[..., 0] + s * dp[..., 1]
-    w[..., p[1]] = -s * dp[..., 0] + c * dp[..., 1]
+    w[..., i] = c * dx + s * dy
+    w[..., j] = -s * dx + c * dy
     w[..., lay.heading] = psi - psi0
     return w
+
+
+def _columns(index: tuple[int, ...]) -> slice | list[int]:
+    """Column indices as a slice where they are consecutive (a view, no fancy indexing), else a list."""
+    return slice(index[0], index[-1] + 1) if list(index) == list(range(index[0], index[-1] + 1)) else list(index)
+
+
+def unwrap_angles(angles: np.ndarray) -> np.ndarray:
+    """``np.unwrap(angles, axis=-1)`` (the same numbers, a new array); a sequence without a step of pi
+    or more, the usual window, is returned as it is without np.unwrap's corrections (all zero there)."""
+    step = angles[..., 1:] - angles[..., :-1]          # np.diff's steps
+    if not (np.abs(step) < np.pi).all():
+        return np.unwrap(angles, axis=-1)
+    out = np.array(angles, dtype=np.float64)
+    out[..., 1:] += 0.0         # as np.unwrap adds its (zero) corrections: -0.0 becomes 0.0
+    return out
 
 
 def from_window_frame(window_states: np.ndarray, state_names: Sequence[str], origin: np.ndarray) -> np.ndarray:

@@ -9,6 +9,10 @@ import numpy as np
 from vflpcd.core.guidance.speed import arrival_times, menger_curvature, signed_curvature
 
 
+SERIES = ("psi", "kappa", "s", "v", "omega", "accel", "pos")   # what ``Trajectory.sample`` interpolates
+STOPPED = ("v", "omega", "accel")                               # 0 after the end: the reference stands
+
+
 @dataclass(frozen=True)
 class Trajectory:
     """Reference sampled at a fixed period.
@@ -35,13 +39,19 @@ class Trajectory:
         """[X_r, Y_r, psi_r, v_x^r, v_y^r = 0, omega_r] rows (M, 6): the paper's reference x_r."""
         return np.column_stack([self.pos[:, 0], self.pos[:, 1], self.psi, self.v, np.zeros_like(self.v), self.omega])
 
-    def sample(self, t) -> dict[str, np.ndarray]:
-        """Linear interpolation of every series at times t (scalar or (K,)), clamped to the ends;
-        after the end the reference stands at its last point: speed, yaw rate and acceleration 0."""
+    def sample(self, t, names: tuple[str, ...] = SERIES) -> dict[str, np.ndarray]:
+        """Linear interpolation of the series ``names`` (default all) at times t (scalar or (K,)),
+        clamped to the ends; after the end the reference stands at its last point: speed, yaw rate
+        and acceleration 0."""
         t = np.asarray(t, float)
-        out = {name: np.interp(t, self.t, getattr(self, name)) for name in ("psi", "kappa", "s")}
-        out.update({name: np.interp(t, self.t, getattr(self, name), right=0.0) for name in ("v", "omega", "accel")})
-        out["pos"] = np.stack([np.interp(t, self.t, self.pos[:, j]) for j in range(self.pos.shape[1])], axis=-1)
+        out = {}
+        for name in names:
+            if name == "pos":
+                out["pos"] = np.stack([np.interp(t, self.t, self.pos[:, j]) for j in range(self.pos.shape[1])], axis=-1)
+            elif name in STOPPED:
+                out[name] = np.interp(t, self.t, getattr(self, name), right=0.0)
+            else:
+                out[name] = np.interp(t, self.t, getattr(self, name))
         return out
 
 

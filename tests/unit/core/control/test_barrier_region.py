@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vflpcd.core.control.barrier import HorizonBarrier, safety_points
+from vflpcd.core.control.barrier import HorizonBarrier, no_barrier, safety_points
 from vflpcd.core.control.game_region import bup_angle, evader_frame, in_region, threats
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.shapes import Box, Circle
@@ -99,3 +99,14 @@ def test_bad_barrier_input_is_rejected():
         HorizonBarrier(np.array([0, 1]), np.zeros((2, 2)), np.zeros((1, 2, 2)), np.zeros((1, 2, 2)), np.array([-1.0]))
     with pytest.raises(ValueError):
         HorizonBarrier(np.array([0, 1]), np.zeros((2, 2)), np.full((1, 2, 2), np.nan), np.zeros((1, 2, 2)), np.array([1.0]))
+    for length in (0.0, np.nan):                        # a barrier without obstacles checks its length too
+        with pytest.raises(ValueError):
+            HorizonBarrier(np.array([0, 1]), np.zeros((2, 2)), np.zeros((0, 2, 2)), np.zeros((0, 2, 2)), np.zeros(0),
+                           length)
+    assert no_barrier([0, 1], np.zeros((2, 2))).count == 0
+
+
+def test_the_region_takes_scalar_or_per_pursuer_distances_alike():
+    zeta = np.random.default_rng(4).uniform(-8.0, 8.0, size=(50, 2))
+    for s_bar in (0.5 * np.pi, 0.7 * np.pi, np.pi):
+        assert np.array_equal(in_region(zeta, 2.0, 3.0, s_bar), in_region(zeta, np.full(50, 2.0), 3.0, np.full(50, s_bar)))
