@@ -37,11 +37,12 @@ def assert_failsafe(result, kind, code=3):
 
 
 def test_a_plan_the_car_cannot_drive_stops_it(mission_file, tmp_path):
-    # nine posts in a walled corridor: the guidance's plan turns tighter than the steering can, and
-    # with the recovery margins set to the full ones no recovery replan is tried
+    # nine posts in a walled corridor: the field's plan turns tighter than the steering can; with
+    # the recovery margins set to the full ones no recovery replan is tried, and without the tight
+    # path the field's plan is the one installed
     corridor = (config_dir() / "scenarios" / "safety" / "dense_corridor.toml").read_text()
     (tmp_path / "corridor.toml").write_text(corridor + "\n[guidance]\nrecovery_margin = 0.5\n"
-                                            "recovery_reactive_margin = 1.5\n")
+                                            "recovery_reactive_margin = 1.5\ntight_length = 0.0\n")
     result = run_mission(load_mission(mission_file(route="corridor.toml", rate_hz=RATE, hold=0.5)))
     event = assert_failsafe(result, "undrivable_plan")
     assert "beyond the steering limit 0.174 1/m" in event.detail["reason"]
