@@ -68,6 +68,11 @@ class Keepout:
     clearance: float
     shift: float = 0.0
 
+    def centres(self, times: np.ndarray) -> np.ndarray:
+        """The shape's centre (M, d) at each of times (M,)."""
+        o = self.obstacle
+        return o.center + (np.asarray(times)[:, None] + self.shift - o.stamp) * o.velocity
+
     def signed_distance(self, pts: np.ndarray, times: np.ndarray) -> np.ndarray:
         """Signed distance of pts (M, d), reached at times (M,), to the shape."""
         o = self.obstacle
@@ -85,16 +90,14 @@ def _tangents(x: np.ndarray) -> np.ndarray:
 
 def _sd_grad(k: Keepout, pts: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Signed distance of pts (M, d) (reached at times (M,)) to k's shape and its unit gradient
-    (central differences)."""
-    sd = k.signed_distance(pts, times)
-    d = pts.shape[1]
-    grad = np.empty_like(pts)
-    for j in range(d):
-        e = np.zeros(d)
-        e[j] = FD_STEP
-        grad[:, j] = (k.signed_distance(pts + e, times) - k.signed_distance(pts - e, times)) / (2 * FD_STEP)
+    (central differences), from one evaluation of the 2 d + 1 stacked point sets."""
+    m, d = pts.shape
+    steps = np.vstack([np.zeros(d), FD_STEP * np.eye(d), -FD_STEP * np.eye(d)])        # (2 d + 1, d)
+    sd = k.signed_distance((pts[None] + steps[:, None, :]).reshape(-1, d), np.tile(times, len(steps)))
+    sd = sd.reshape(len(steps), m)
+    grad = ((sd[1:d + 1] - sd[d + 1:]) / (2 * FD_STEP)).T
     grad /= np.maximum(np.linalg.norm(grad, axis=1, keepdims=True), 1e-12)
-    return sd, grad
+    return sd[0], grad
 
 
 def disc_gaps(x: np.ndarray, body: Body, keepouts: Sequence[Keepout], times: np.ndarray | None = None) -> np.ndarray:
@@ -120,15 +123,24 @@ def body_half_planes(x: np.ndarray, times: np.ndarray, body: Body, keepouts: Seq
     n = np.zeros_like(x)
     b = np.full(len(x), -np.inf)
     need = np.full(len(x), -np.inf)          # b_k - n_k' x_k: how far the point must move along n_k
+    slack = np.broadcast_to(np.asarray(slack, float), (len(x),))
+    body_reach = float(np.max(np.abs(body.offsets))) + body.radius
     for k in keepouts:
+        # only the points whose discs may come within REACH of the clearance (by the shape's
+        # bounding circle) can get a half-plane from k: the signed distances of the rest are skipped
+        far = body_reach + k.clearance + REACH + k.obstacle.shape.bounding_radius()
+        idx = np.flatnonzero(np.linalg.norm(x - k.centres(times), axis=1) < far)
+        if idx.size == 0:
+            continue
+        xi, ti, si = x[idx], t[idx], slack[idx]
         for o_j in body.offsets:
-            c = x + o_j * t
-            sd, g = _sd_grad(k, c, times)
-            want = body.radius + k.clearance - slack - sd
-            near = (want > -REACH) & (want > need)
-            need[near] = want[near]
-            n[near] = g[near]
-            b[near] = np.einsum("ij,ij->i", g[near], x[near]) + want[near]
+            sd, g = _sd_grad(k, xi + o_j * ti, times[idx])
+            want = body.radius + k.clearance - si - sd
+            near = (want > -REACH) & (want > need[idx])
+            rows = idx[near]
+            need[rows] = want[near]
+            n[rows] = g[near]
+            b[rows] = np.einsum("ij,ij->i", g[near], xi[near]) + want[near]
     return n, b
 
 
