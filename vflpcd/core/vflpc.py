@@ -49,8 +49,8 @@ from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout, to_window_frame
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.obstacles import ObstacleState
-from vflpcd.core.norms import row_norms, vector_norm
-from vflpcd.core.path import nearest_on_polyline
+from vflpcd.core.norms import vector_norm
+from vflpcd.core.path import nearest_on_polyline, unit_differences
 from vflpcd.core.ports import ControllerBase, ControllerStatus
 
 log = logging.getLogger("vflpcd.core.vflpc")
@@ -164,16 +164,6 @@ class VFLPCParams:
     gp_linearisation: str = "nominal"
     gp_bounds: tuple[tuple[float, float], ...] = ((1e-6, 0.1), (0.3, 10.0), (1e-6, 1e-3))   # sf2, ell, sn2
 
-
-
-def unit_differences(points: np.ndarray) -> np.ndarray:
-    """The unit directions (T, d) along points (T >= 2, d): central differences inside, one-sided at the
-    ends (``np.gradient(points, axis=0)``, the same numbers), normalised (a zero difference stays ~0)."""
-    diff = np.empty_like(points)
-    diff[1:-1] = (points[2:] - points[:-2]) / 2.0
-    diff[0] = points[1] - points[0]
-    diff[-1] = points[-1] - points[-2]
-    return diff / np.maximum(row_norms(diff, keepdims=True), 1e-9)
 
 
 def _check_obstacles(obstacles: Sequence[ObstacleState], dim: int) -> None:

@@ -3,7 +3,7 @@ import importlib.util
 import numpy as np
 import pytest
 
-from vflpcd.core.path import ReferencePath, progress_delta
+from vflpcd.core.path import ReferencePath, progress_delta, unit_differences
 
 
 def test_arc_curvature_and_length():
@@ -89,3 +89,14 @@ def test_the_nearest_segment_loop_gives_the_numpy_searchs_arc_length(closed):
             got = path.arc_length_of(p, s_hint, loop=loop)
             assert abs(got - expected) <= 1e-12 and got == expected
     assert path.arc_length_of(path.points[3], None, loop=nearest_segment) == path.project(path.points[3]).s
+
+
+def test_unit_differences_are_np_gradients_directions():
+    def directions(p):
+        g = np.gradient(p, axis=0)
+        return g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
+
+    pts = np.cumsum(np.random.default_rng(3).normal(size=(21, 3)), axis=0)
+    pts[5:7] = pts[4]                                       # a standstill: a zero direction, no NaN
+    assert np.array_equal(unit_differences(pts), directions(pts)) and not unit_differences(pts)[5].any()
+    assert np.array_equal(unit_differences(pts[:2]), directions(pts[:2]))

@@ -66,11 +66,9 @@ def resample(xy: np.ndarray, times: np.ndarray, h: float) -> tuple[np.ndarray, n
     return pts, np.interp(si, s, times)
 
 
-def half_planes(x: np.ndarray, t: np.ndarray, regions: Sequence[Region],
-                level: float = CLEAR_LEVEL) -> tuple[np.ndarray, np.ndarray]:
+def half_planes(x: np.ndarray, t: np.ndarray, regions: Sequence[Region]) -> tuple[np.ndarray, np.ndarray]:
     """Per point the supporting half-plane n_k' x >= b_k of the nearest-reaching repulsive region
-    among those whose reactive region holds the point (n_k = 0, b_k = -inf: free), touching the
-    level varphi_i = level c_i (n_k unit: b_k - n_k' x_k is in metres)."""
+    among those whose reactive region holds the point (n_k = 0, b_k = -inf: free)."""
     n = np.zeros_like(x)
     b = np.full(len(x), -np.inf)
     worst = np.full(len(x), np.inf)
@@ -81,9 +79,9 @@ def half_planes(x: np.ndarray, t: np.ndarray, regions: Sequence[Region],
         if near.size == 0:
             continue
         q = x[near]
-        for _ in range(6):  # Newton along the gradient to varphi_i = level c_i
+        for _ in range(6):  # Newton along the gradient to varphi_i = CLEAR_LEVEL c_i
             vq, gq = region.value_grad(q, t[near])
-            q = q + ((level * c - vq) / np.maximum(np.einsum("ij,ij->i", gq, gq), 1e-12))[:, None] * gq
+            q = q + ((CLEAR_LEVEL * c - vq) / np.maximum(np.einsum("ij,ij->i", gq, gq), 1e-12))[:, None] * gq
         _, gq = region.value_grad(q, t[near])
         nq = gq / np.maximum(np.linalg.norm(gq, axis=1, keepdims=True), 1e-12)
         n[near], b[near] = nq, np.einsum("ij,ij->i", nq, q)

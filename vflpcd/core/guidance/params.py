@@ -46,7 +46,6 @@ class GuidanceParams:
     recovery_margin: float = 0.1
     recovery_reactive_margin: float = 0.5
     tight_length: float = 0.0
-    tight_length: float = 0.0
     tight_margin: float = 0.4
     tight_mover_window: float = 0.0
     virtual_obstacles: tuple[VirtualObstacleSpec, ...] = ()

@@ -200,7 +200,8 @@ class PlannerBase:
                heading: np.ndarray | None = None, pin_end: bool = False) -> np.ndarray:
         """xy (K, d) with its curvature brought within kappa_max around the terms' repulsive regions,
         leaving the start along ``heading`` (d,) when given, ending where it ends with ``pin_end``."""
-        return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, _regions(terms), heading, pin_end)
+        regions = [Region(partial(_value_grad_at_times, term.implicit), term.implicit.c) for term in terms]
+        return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, regions, heading, pin_end)
 
     def tight_clearance(self, o: ObstacleState) -> float:
         """The clearance the tight path keeps between the body's discs and o's shape: ``tight_margin``
@@ -208,8 +209,8 @@ class PlannerBase:
         p = self.params
         return p.tight_margin + self.margin(o) - p.safety_margin
 
-    def tightened(self, prepared: Prepared, field: GuidanceField, movers: Sequence[ObstacleState], xy: np.ndarray,
-                  s: np.ndarray, v: np.ndarray, t0: float, v0: float, heading: np.ndarray | None, goal: bool):
+    def tightened(self, prepared: Prepared, movers: Sequence[ObstacleState], xy: np.ndarray, s: np.ndarray,
+                  v: np.ndarray, t0: float, v0: float, heading: np.ndarray | None, goal: bool):
         """The speed-planned path xy (arc lengths s, speeds v, from t0 at v0) pulled onto the
         reference path as far as the body's clearance (``tight_clearance``) to the stretch's static
         obstacles and to the movers, ``tight_mover_window`` s before and after the time each point
@@ -227,8 +228,8 @@ class PlannerBase:
         keepouts = [Keepout(o, self.tight_clearance(o)) for o in prepared.statics] + moving
         times = field_times = _arrivals(s, v, t0)
         if moving:      # the field's timed path may pass a mover closer than the clearance: no closer than it
-            field = timed_trajectory(xy, s, v, t0, self.dt)
-            floor = min(0.0, float(np.min(disc_gaps(field.pos, self.body, moving, field.t)))) - CLEAR_TOLERANCE
+            timed = timed_trajectory(xy, s, v, t0, self.dt)
+            floor = min(0.0, float(np.min(disc_gaps(timed.pos, self.body, moving, timed.t)))) - CLEAR_TOLERANCE
         for _ in range(MOVER_PASSES if moving else 1):
             out = tighten_path(xy, times, partial(feet_on_polyline, xy=stretch), self.kappa_max, self.body, keepouts,
                                p.tight_length, heading, goal, field_times)
@@ -317,11 +318,6 @@ def _arrivals(s: np.ndarray, v: np.ndarray, t0: float) -> np.ndarray:
     t = t0 + arrival_times(s, v)
     t[~np.isfinite(t)] = np.max(t[np.isfinite(t)])
     return t
-
-
-def _regions(terms) -> list[Region]:
-    """The fairing's view of the terms' repulsive regions (moving obstacles at the points' times)."""
-    return [Region(partial(_value_grad_at_times, term.implicit), term.implicit.c) for term in terms]
 
 
 def _stops(v: np.ndarray) -> bool:
@@ -498,7 +494,7 @@ class GuidancePlanner(PlannerBase):
             if slower is not None:
                 s, kappa, v, trajectory = slower
         else:       # a path the field found to pass: as tight as the clearances let it
-            tight = self.tightened(prepared, field, movers, xy, s, v, t0, v0, h, prepared.ends_path and res.reached)
+            tight = self.tightened(prepared, movers, xy, s, v, t0, v0, h, prepared.ends_path and res.reached)
             if tight is not None:
                 xy, s, kappa, v = tight
                 trajectory = timed_trajectory(xy, s, v, t0, self.dt)

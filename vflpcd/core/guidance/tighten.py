@@ -42,6 +42,7 @@ import numpy as np
 from vflpcd.core.guidance.fairing import FAIR_MIN, OUTER_ROUNDS, SPACING, resample, solve_active_set
 from vflpcd.core.guidance.speed import menger_curvature
 from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.path import unit_differences
 
 REACH = 2.0             # m: a disc this much farther than the clearance from a shape leaves its point free
 CLEAR_TOLERANCE = 0.02  # m the final discs may sit inside the clearance (the tangent moves between rounds)
@@ -68,24 +69,19 @@ class Keepout:
     clearance: float
     shift: float = 0.0
 
+    def _travel(self, times: np.ndarray) -> np.ndarray:
+        """How far (M, d) the shape has moved from its stamp at each of times (M,) (plus the shift)."""
+        o = self.obstacle
+        return (np.asarray(times) + self.shift - o.stamp)[:, None] * o.velocity
+
     def centres(self, times: np.ndarray) -> np.ndarray:
         """The shape's centre (M, d) at each of times (M,)."""
-        o = self.obstacle
-        return o.center + (np.asarray(times)[:, None] + self.shift - o.stamp) * o.velocity
+        return self.obstacle.center + self._travel(times)
 
     def signed_distance(self, pts: np.ndarray, times: np.ndarray) -> np.ndarray:
         """Signed distance of pts (M, d), reached at times (M,), to the shape."""
         o = self.obstacle
-        if not o.moving:
-            return o.signed_distance(pts)
-        back = (np.asarray(times) + self.shift - o.stamp)[:, None] * o.velocity
-        return o.signed_distance(pts - back)
-
-
-def _tangents(x: np.ndarray) -> np.ndarray:
-    """Unit tangents (K, d) of the polyline x by central differences (one-sided at the ends)."""
-    g = np.gradient(x, axis=0)
-    return g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
+        return o.signed_distance(pts - self._travel(times)) if o.moving else o.signed_distance(pts)
 
 
 def _sd_grad(k: Keepout, pts: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -104,7 +100,7 @@ def disc_gaps(x: np.ndarray, body: Body, keepouts: Sequence[Keepout], times: np.
     """Per point of x (K, d), reached at ``times`` (K,) (only moving keepouts need them), the least
     sd(disc centre) - radius - clearance over the discs and keepouts (K,) (+inf without keepouts):
     negative where a disc is closer than the clearance."""
-    t = _tangents(x)
+    t = unit_differences(x)
     times = np.zeros(len(x)) if times is None else times
     gap = np.full(len(x), np.inf)
     for k in keepouts:
@@ -119,7 +115,7 @@ def body_half_planes(x: np.ndarray, times: np.ndarray, body: Body, keepouts: Seq
     """Per point the most binding disc half-plane n_k' x >= b_k (module docstring) for the
     clearances less ``slack`` (K,) m, (n (K, d), b (K,)); n_k = 0, b_k = -inf where every disc is
     farther than ``REACH`` beyond its clearance."""
-    t = _tangents(x)
+    t = unit_differences(x)
     n = np.zeros_like(x)
     b = np.full(len(x), -np.inf)
     need = np.full(len(x), -np.inf)          # b_k - n_k' x_k: how far the point must move along n_k

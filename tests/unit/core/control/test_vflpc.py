@@ -87,15 +87,3 @@ def test_the_quadrotor_state_is_picked_by_name():
     with pytest.raises(ValueError, match="13 finite numbers"):
         ctrl.step(plant.state[:6], 0.05)
 
-
-def test_unit_differences_are_np_gradients_directions():
-    from vflpcd.core.vflpc import unit_differences
-
-    def directions(p):
-        g = np.gradient(p, axis=0)
-        return g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-9)
-
-    pts = np.cumsum(np.random.default_rng(3).normal(size=(21, 3)), axis=0)
-    pts[5:7] = pts[4]                                       # a standstill: a zero direction, no NaN
-    assert np.array_equal(unit_differences(pts), directions(pts)) and not unit_differences(pts)[5].any()
-    assert np.array_equal(unit_differences(pts[:2]), directions(pts[:2]))

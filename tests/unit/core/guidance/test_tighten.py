@@ -43,9 +43,9 @@ def test_a_parked_car_is_passed_as_close_as_the_clearance_lets_the_body():
     assert np.max(plans[1].kappa) <= tight.kappa_max
 
 
-def test_no_tight_path_within_the_curvature_limit_leaves_the_fields_path():
-    """With a curvature limit no detour can keep, there is no tight path (None), and the planner's
-    plan is the field's."""
+def test_no_tight_path_exists_within_a_curvature_limit_no_detour_can_keep():
+    """With a curvature limit no detour can keep there is no tight path (None: the planner then keeps
+    the field's path); with the car's limit there is one."""
     params = default_guidance()
     box = obstacle("parked", Box(4.6, 1.9), 40.0, -0.6)
     p = planner(params)
