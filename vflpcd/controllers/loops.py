@@ -1,12 +1,13 @@
 """Core's loops compiled with numba (``njit``), for the controllers that run them.
 
 Core stays pure (numpy and scipy only, no files): it writes a loop as plain Python
-(``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.path_kernel.nearest_segment``)
+(``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.path_kernel.nearest_segment``,
+``vflpcd.core.guidance.active_set_kernel.solve_loop``)
 and takes the compiled function as an argument. This module compiles each once per process, with
 numba's on-disk cache (beside the source, or numba's user-wide cache where that is read-only, or
 ``$NUMBA_CACHE_DIR``; the systemd unit sets it), so a later process loads it in milliseconds;
-with no writable place it compiles in memory at every start. Without numba ``ebrhrl_loop()`` and
-``path_loop()`` return None and their users run their numpy paths.
+with no writable place it compiles in memory at every start. Without numba ``ebrhrl_loop()``,
+``path_loop()`` and ``active_set_loop()`` return None and their users run their numpy paths.
 """
 
 from __future__ import annotations
@@ -31,6 +32,15 @@ def path_loop():
     from vflpcd.core.path_kernel import nearest_segment
 
     return _compiled("path", nearest_segment, _warm_path)
+
+
+@lru_cache(maxsize=1)
+def active_set_loop():
+    """``active_set_kernel.solve_loop`` (the guidance fairing's and tight path's convex problems)
+    compiled and loaded (``_warm_active_set``), or None without numba."""
+    from vflpcd.core.guidance.active_set_kernel import solve_loop
+
+    return _compiled("active_set", solve_loop, _warm_active_set)
 
 
 def _compiled(name: str, fn, warm):
@@ -67,3 +77,11 @@ def _warm_path(loop) -> None:
     import numpy as np
 
     loop(np.zeros(2), np.zeros((2, 2)), np.ones((1, 2)), np.ones(1), np.zeros(1, np.int64))
+
+
+def _warm_active_set(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``fairing.solve_active_set`` passes."""
+    import numpy as np
+
+    loop(np.eye(1, 4), np.zeros(4), np.zeros((2, 2)), np.zeros(2), np.zeros(2, bool), np.zeros(2, bool),
+         np.zeros(4), 1, 1.0, 1e-6, 1e-13)

@@ -17,11 +17,13 @@ the field at a robot off the path points towards it, and a reference that starts
 asks the car for a step in heading. Q_i is convex, so it is convexified by a supporting
 half-plane per point: at the point where the gradient line through x_k meets the level
 varphi_i = CLEAR_LEVEL c_i just outside Q_i (a few outer rounds re-take them at the new points).
-Each convex problem is solved by an active set whose rounds are one banded Cholesky solve each,
-started from the previous problem's final active set (the next outer round, the next l): cold, on
-``carsim_avoidance`` a solve took 43 rounds median and several stopped at the ``ACTIVE_ROUNDS``
-cap unconverged (plans beyond the steering limit came out of them); warm, 1 round median. l is doubled
-from ``FAIR_MIN`` until the peak curvature is within kappa_max; if ``FAIR_MAX`` is reached the
+Each convex problem is solved by the two-phase active set of ``active_set_kernel`` (one banded
+Cholesky factorisation a round, compiled with numba where it is installed), started from the
+previous problem's final active set (the next outer round, the next l). Its second phase steps
+only as far as the half-planes let it, so it cannot cycle: jumping to each round's minimiser, as
+it did before, released and re-added the same half-planes until the ``ACTIVE_ROUNDS`` cap in 79 of
+200 solves on the suite's follow_slow_car; a solve that still reaches the cap (a stiff path among
+many movers' half-planes can need more rounds) returns its last feasible point. l is doubled from ``FAIR_MIN`` until the peak curvature is within kappa_max; if ``FAIR_MAX`` is reached the
 flattest clear path found is kept and the speed plan does what it can.
 """
 
@@ -90,27 +92,26 @@ def half_planes(x: np.ndarray, t: np.ndarray, regions: Sequence[Region]) -> tupl
 
 
 def _hessian_bands(K: int, d: int, eps: float) -> np.ndarray:
-    """kron(D2'D2 + eps I, I_d) over the interleaved coordinates x[k d + j], in solveh_banded's
-    upper layout with 2 d + 1 super-diagonals: ab[u + i - j, j] = M[i, j]. D2'D2 is the
+    """kron(D2'D2 + eps I, I_d) over the interleaved coordinates x[k d + j], in LAPACK's lower band
+    layout with 2 d + 1 sub-diagonals: ab[i - j, j] = M[i, j] (i >= j). D2'D2 is the
     pentadiagonal [1 -2 1]' [1 -2 1] sum: main diagonal 1, 5, 6 .. 6, 5, 1, first off-diagonal
     -2, -4 .. -4, -2, second 1; in the interleaved matrix they sit at offsets 0, d and 2 d."""
     main = np.full(K, 6.0)
     main[[0, -1]], main[[1, -2]] = 1.0, 5.0
     off1 = np.full(K - 1, -4.0)
     off1[[0, -1]] = -2.0
-    u = 2 * d + 1
-    ab = np.zeros((u + 1, K * d))
-    ab[u] = np.repeat(main + eps, d)
-    ab[u - d, d:] = np.repeat(off1, d)
-    ab[u - 2 * d, 2 * d:] = 1.0
+    ab = np.zeros((2 * d + 2, K * d))
+    ab[0] = np.repeat(main + eps, d)
+    ab[d, :-d] = np.repeat(off1, d)
+    ab[2 * d, :-2 * d] = 1.0
     return ab
 
 
 def _banded_solve(ab: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """The symmetric positive definite banded system (upper layout of ``_hessian_bands``) solved
+    """The symmetric positive definite banded system (lower layout of ``_hessian_bands``) solved
     by LAPACK's dpbsv, the routine ``scipy.linalg.solveh_banded`` calls, without its argument
-    checks (about 40 us of a 55 us call, run ~40 times per convex problem); ab and f are consumed."""
-    _, x, info = dpbsv(ab, f, lower=0, overwrite_ab=1, overwrite_b=1)
+    checks (about 40 us of a 55 us call); ab and f are consumed."""
+    _, x, info = dpbsv(ab, f, lower=1, overwrite_ab=1, overwrite_b=1)
     if info != 0:
         raise LinAlgError(f"fairing system not positive definite (dpbsv info {info})")
     return x
@@ -128,61 +129,87 @@ def bending(g: np.ndarray) -> np.ndarray:
 
 def solve_active_set(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, x0: np.ndarray,
                      pin_end: bool, active0: np.ndarray | None = None,
-                     shape: np.ndarray | None = None, pins: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     shape: np.ndarray | None = None, pins: np.ndarray | None = None,
+                     loop=None) -> tuple[np.ndarray, np.ndarray]:
     """min eps |x - r|^2 + |D2 (x - g)|^2 (g = ``shape``, default 0: the bending of x itself; a path g
-    makes it the bending of x's offset from g) subject to n_k' x_k >= b_k, with the first two points (and with
-    pin_end the last) pinned (where ``pins`` (K, d) has them, default r), by an active set: each round solves the banded normal equations with
-    the active half-planes (and the pins) held by a stiff spring (PENALTY), then adds every violated
-    half-plane, or else releases the one that the spring holds from outside the most (a negative
-    multiplier); it ends when neither exists (x is then the minimiser to ~1e-7 m). Stopped by
-    ``ACTIVE_ROUNDS`` (the release cycles on some degenerate problems), it returns its last iterate
-    that violated no half-plane (the one it stopped at may cut into a region). ``active0``: the
-    active set to start from besides the half-planes x0 violates (the previous solve's); returns
-    (x, its active set)."""
+    makes it the bending of x's offset from g) subject to n_k' x_k >= b_k, with the first two points
+    (and with pin_end the last) pinned (where ``pins`` (K, d) has them, default r) by a stiff spring
+    (PENALTY), by the two-phase active set of ``active_set_kernel`` (x is then the minimiser to
+    ~1e-7 m). Stopped by ``ACTIVE_ROUNDS``, it returns its last iterate that violated no half-plane.
+    The active set starts from the half-planes x0 violates and ``active0`` (the previous solve's);
+    returns (x, its active set). ``loop``: ``active_set_kernel.solve_loop`` compiled
+    (``vflpcd.controllers.loops``); without it the same phases run on numpy and LAPACK."""
     K, d = r.shape
-    u = 2 * d + 1
     base = _hessian_bands(K, d, eps)
     f0 = eps * r.ravel()
     if shape is not None:
         f0 += bending(shape).ravel()
     pinned = [0, 1, K - 1] if pin_end else [0, 1]
     cols = (np.array(pinned)[:, None] * d + np.arange(d)).ravel()
-    base[u, cols] += PENALTY
+    base[0, cols] += PENALTY
     f0[cols] += PENALTY * (r if pins is None else pins)[pinned].ravel()
     constrained = np.isfinite(b)
     constrained[pinned] = False
     active = constrained & (np.einsum("ij,ij->i", n, x0) < b)
     if active0 is not None:
         active |= constrained & active0
+    x = np.array(x0, dtype=float).ravel()
+    n = np.ascontiguousarray(n, dtype=float)
+    if loop is not None:
+        done = loop(base, f0, n, np.where(constrained, b, 0.0), constrained, active, x, ACTIVE_ROUNDS, PENALTY,
+                    VIOLATION, RELEASE)
+        if done < 0:
+            raise LinAlgError("fairing system not positive definite")
+    else:
+        _solve_numpy(base, f0, n, b, constrained, active, x)
+    return x.reshape(K, d), active
+
+
+def _solve_numpy(low0: np.ndarray, f0: np.ndarray, n: np.ndarray, b: np.ndarray, constrained: np.ndarray,
+                 active: np.ndarray, x: np.ndarray) -> int:
+    """``active_set_kernel.solve_loop``'s two phases on numpy, each round's system by ``dpbsv``;
+    active and x (N,) written in place; the rounds taken (0: stopped by ``ACTIVE_ROUNDS``)."""
+    K, d = n.shape
     pairs = [(j1, j2) for j1 in range(d) for j2 in range(j1, d)]
-    x, feasible = x0, None
-    for _ in range(ACTIVE_ROUNDS):
-        ab, f = base.copy(), f0.copy()
+    feasible = False
+    for r in range(ACTIVE_ROUNDS):
+        low, f = low0.copy(), f0.copy()
         k = np.nonzero(active)[0]
         for j1, j2 in pairs:
-            np.add.at(ab[u - (j2 - j1)], k * d + j2, PENALTY * n[k, j1] * n[k, j2])
+            low[j2 - j1, k * d + j1] += PENALTY * n[k, j1] * n[k, j2]
         f.reshape(K, d)[k] += PENALTY * b[k, None] * n[k]
-        x = _banded_solve(ab, f).reshape(K, d)
-        gap = np.where(constrained, np.einsum("ij,ij->i", n, x) - b, 0.0)
-        violated = ~active & (gap < -VIOLATION)
-        if np.any(violated):
-            active |= violated
+        xs = _banded_solve(low, f)
+        after = np.where(constrained, np.einsum("ij,ij->i", n, xs.reshape(K, d)) - b, 0.0)
+        open_ = constrained & ~active & (after < -VIOLATION)
+        if not feasible:                 # phase 1: add every violated half-plane
+            x[:] = xs
+            if np.any(open_):
+                active |= open_
+                continue
+            feasible = True
+        elif np.any(open_):              # phase 2: step towards x* until a half-plane blocks
+            before = np.maximum(np.einsum("ij,ij->i", n, x.reshape(K, d)) - np.where(constrained, b, 0.0), 0.0)
+            reach = np.where(open_, before / np.where(open_, before - after, 1.0), np.inf)
+            block = int(np.argmin(reach))
+            x += reach[block] * (xs - x)
+            active[block] = True
             continue
-        feasible = x, active.copy()
-        held = np.where(active & (gap > RELEASE), gap, 0.0)
-        if not np.any(held):
-            return feasible
-        active[np.argmax(held)] = False
-    return feasible if feasible is not None else (x, active)
+        else:
+            x[:] = xs
+        held = np.where(active & (after > RELEASE), after, -np.inf)
+        if not np.any(np.isfinite(held)):
+            return r + 1
+        active[int(np.argmax(held))] = False
+    return 0
 
 
 def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequence[Region],
-              heading: np.ndarray | None = None, pin_end: bool = False) -> np.ndarray:
+              heading: np.ndarray | None = None, pin_end: bool = False, loop=None) -> np.ndarray:
     """The path xy (K, d) (reached at times (K,)) with its peak curvature brought within kappa_max
     and, with ``heading`` (d,), leaving the start in the robot's heading (module docstring); with
     ``pin_end`` the last point stays where it is (the goal);
     returned unchanged (not resampled) if it already does both.
-    ``regions``: the repulsive regions to stay out of."""
+    ``regions``: the repulsive regions to stay out of; ``loop``: ``solve_active_set``'s."""
     if not np.isfinite(kappa_max) or len(xy) < 7:
         return xy
     first = xy[min(int(np.ceil(SPACING / max(np.linalg.norm(xy[1] - xy[0]), 1e-9))), len(xy) - 1)] - xy[0]
@@ -199,7 +226,7 @@ def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequ
         x = r
         for _ in range(OUTER_ROUNDS):
             n, b = half_planes(x, t, regions)
-            x, active = solve_active_set(r, eps, n, b, x, pin_end, active)
+            x, active = solve_active_set(r, eps, n, b, x, pin_end, active, loop=loop)
         clear = all(np.all(r.value_grad(x, t)[0][2:-2] > r.c) for r in regions)
         kappa = np.max(menger_curvature(x))
         if clear and kappa < best_kappa:

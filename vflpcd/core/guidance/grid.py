@@ -24,7 +24,7 @@ import numpy as np
 
 from vflpcd.core.guidance.field import GuidanceField
 from vflpcd.core.guidance.implicit import GuidanceError
-from vflpcd.core.guidance.primitives import bump, guiding, unit
+from vflpcd.core.guidance.primitives import bump, cup_at, guiding, unit
 
 BACKWARDS = -0.3  # cos between the planned circulation and the path tangent that flips gamma_i at entry
 
@@ -166,12 +166,13 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
             for term, o, cx, cy, vx, vy, stamp, reach2 in movers:
                 if (x - cx - vx * (t - stamp)) ** 2 + (y - cy - vy * (t - stamp)) ** 2 > reach2:
                     continue
-                phi, g = o.value_grad(np.array([[x, y]]), t)
-                cup, cap = bump(phi, o.c, field.l1, field.l2)
-                chi = guiding(term.gamma, field.k_r, phi, g)[0]
-                chi = chi / max(math.hypot(chi[0], chi[1]), 1e-300)
-                P *= cup[0]
-                Vx, Vy = Vx + cap[0] * chi[0], Vy + cap[0] * chi[1]
+                phi, gx, gy = o.value_grad_at(x, y, t)
+                cup = cup_at(phi, o.c, field.l1, field.l2)
+                chx = -term.gamma * gy - field.k_r * phi * gx      # guiding(): gamma E grad - k_r phi grad
+                chy = term.gamma * gx - field.k_r * phi * gy
+                chn = max(math.hypot(chx, chy), 1e-300)
+                P *= cup
+                Vx, Vy = Vx + (1.0 - cup) * chx / chn, Vy + (1.0 - cup) * chy / chn
         free = P == 1.0  # outside every actual reactive region: where virtual obstacles may act
         progress = (x - po[0]) * pd[0] + (y - po[1]) * pd[1]
         for n, (term, c, radius) in enumerate(virt):

@@ -27,6 +27,7 @@ shape's exact signed distance).
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -321,13 +322,23 @@ class ObstacleImplicit:
 
     def value_at(self, x: float, y: float, t: float = 0.0) -> float:
         """varphi at one planar point, in plain floats (the integration's hot path)."""
+        return self.value_grad_at(x, y, t)[0]
+
+    def value_grad_at(self, x: float, y: float, t: float = 0.0) -> tuple[float, float, float]:
+        """``value_grad`` at one planar point in plain floats: (varphi, d varphi / dx, d varphi / dy)."""
         cx = self.center[0] + self.velocity[0] * (t - self.stamp)
         cy = self.center[1] + self.velocity[1] * (t - self.stamp)
         c, s = self.Rz[0, 0], self.Rz[1, 0]
-        zx = ((x - cx) * c + (y - cy) * s) / self.axes[0]
-        zy = (-(x - cx) * s + (y - cy) * c) / self.axes[1]
+        ax0, ax1 = self.axes[0], self.axes[1]
+        zx = ((x - cx) * c + (y - cy) * s) / ax0
+        zy = (-(x - cx) * s + (y - cy) * c) / ax1
         p = self.p
-        return (abs(zx) ** p + abs(zy) ** p) ** (1.0 / p) - 1.0
+        ax, ay = abs(zx), abs(zy)
+        S = ax ** p + ay ** p
+        coef = max(S, 1e-300) ** (1.0 / p - 1.0)
+        hx = coef * math.copysign(ax ** (p - 1.0), zx) / ax0 if zx != 0.0 else 0.0
+        hy = coef * math.copysign(ay ** (p - 1.0), zy) / ax1 if zy != 0.0 else 0.0
+        return S ** (1.0 / p) - 1.0, hx * c - hy * s, hx * s + hy * c
 
 
 @functools.lru_cache(maxsize=1024)

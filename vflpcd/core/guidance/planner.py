@@ -24,7 +24,8 @@
    ``curvature_use`` times the robot's geometric limit (``kappa_limit``: tan(delta_max) / L for a
    car) they are faired (``fairing.py``); then they are speed-planned. A timed trajectory that still
    enters a mover's repulsive region (a slow car ahead that the path cannot pass beside oncoming
-   traffic) is speed-planned slower until it does not (``followed``): the robot follows.
+   traffic) is speed-planned slower until it does not (``followed``), on its lane (the path planned
+   without the movers) where that is as fast: the robot follows in its lane.
 """
 
 from __future__ import annotations
@@ -104,7 +105,8 @@ class PlannerBase:
 
     def __init__(self, path: ReferencePath, params: GuidanceParams, v_desired: float, a_lat_max: float,
                  body_radius: float, control_period: float, kappa_limit: float = np.inf,
-                 body: Body | None = None) -> None:
+                 body: Body | None = None, qp_loop=None) -> None:
+        """``qp_loop``: the fairing's active set compiled (``fairing.solve_active_set``'s ``loop``)."""
         if path.dim != self.dim:
             raise GuidanceError(f"{type(self).__name__} needs a {self.dim}-D path, got a {path.dim}-D one")
         for name, value in (("v_desired", v_desired), ("a_lat_max", a_lat_max), ("body_radius", body_radius),
@@ -119,6 +121,7 @@ class PlannerBase:
         self.body = body if body is not None else Body(np.zeros(1), float(body_radius))
         self.kappa_limit = float(kappa_limit)
         self.kappa_max = params.curvature_use * kappa_limit
+        self.qp_loop = qp_loop
 
     def drivable(self, plan: "GuidancePlan") -> bool:
         """Whether the plan keeps the robot's curvature limit (``kappa_limit``) and its lateral
@@ -140,7 +143,7 @@ class PlannerBase:
                          mover_margin_time=0.0, reactive_margin=min(p.reactive_margin, p.recovery_reactive_margin),
                          reactive_per_speed=0.0)
         return type(self)(self.path, narrow, self.v_desired, self.a_lat_max, self.body_radius, self.dt,
-                          kappa_limit=self.kappa_limit, body=self.body)
+                          kappa_limit=self.kappa_limit, body=self.body, qp_loop=self.qp_loop)
 
     def margin(self, o: ObstacleState) -> float:
         """The clearance kept beyond the body radius from obstacle o: ``safety_margin``, plus
@@ -201,7 +204,8 @@ class PlannerBase:
         """xy (K, d) with its curvature brought within kappa_max around the terms' repulsive regions,
         leaving the start along ``heading`` (d,) when given, ending where it ends with ``pin_end``."""
         regions = [Region(partial(_value_grad_at_times, term.implicit), term.implicit.c) for term in terms]
-        return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, regions, heading, pin_end)
+        return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, regions, heading, pin_end,
+                         self.qp_loop)
 
     def tight_clearance(self, o: ObstacleState) -> float:
         """The clearance the tight path keeps between the body's discs and o's shape: ``tight_margin``
@@ -232,7 +236,7 @@ class PlannerBase:
             floor = min(0.0, float(np.min(disc_gaps(timed.pos, self.body, moving, timed.t)))) - CLEAR_TOLERANCE
         for _ in range(MOVER_PASSES if moving else 1):
             out = tighten_path(xy, times, partial(feet_on_polyline, xy=stretch), self.kappa_max, self.body, keepouts,
-                               p.tight_length, heading, goal, field_times)
+                               p.tight_length, heading, goal, field_times, self.qp_loop)
             if out is None:
                 return None
             s_t, kappa, v_t = plan_speed(out[0], self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
@@ -285,15 +289,18 @@ class PlannerBase:
         return any(np.any(self._values(m.implicit, trajectory.pos, trajectory.t) <= (1.0 + slack) * m.implicit.c)
                    for m in movers)
 
-    def followed(self, movers, xy: np.ndarray, t0: float, v0: float, at_rest: bool):
-        """The path xy speed-planned slower (``FOLLOW_SPEEDS`` of v_desired, fastest first) until its
-        trajectory from t0 at v0 meets no mover: a slow car ahead that the path cannot pass is
-        followed. (s, kappa, v, trajectory), or None when no such speed exists (a mover coming the
-        other way)."""
+    def followed(self, movers, paths, t0: float, v0: float):
+        """The first of ``paths`` ((xy, whether it ends at rest), best first) that, speed-planned
+        slower (``FOLLOW_SPEEDS`` of v_desired, fastest first), has a trajectory from t0 at v0 that
+        meets no mover: a slow car ahead that the path cannot pass is followed. The planner tries
+        the lane (its path without the movers) before the field's path round them, so the robot
+        follows in its lane where it can do so as fast. (xy, s, kappa, v, trajectory), or None when
+        no such speed exists (a mover coming the other way)."""
         for f in FOLLOW_SPEEDS:
-            slower = self.timed(xy, f * self.v_desired, v0, t0, at_rest)
-            if not self.meets_mover(movers, slower[3]):
-                return slower
+            for xy, at_rest in paths:
+                slower = self.timed(xy, f * self.v_desired, v0, t0, at_rest)
+                if not self.meets_mover(movers, slower[3]):
+                    return (xy,) + slower
         return None
 
 
@@ -448,8 +455,10 @@ class GuidancePlanner(PlannerBase):
         return Prepared(field=field, grid=grid, s0=s0, s_end=s_end, x_end=x_end, ends_path=ends_path,
                         statics=tuple(o for o in statics if o.id in terms))
 
-    def _integrate_and_time(self, field, prepared: Prepared, start, t0, v0, heading, steps):
-        """Eq. (xi_r), smoothing and speed planning: (integration, xy, s, kappa, v)."""
+    def _integrate_and_time(self, field, prepared: Prepared, start, t0, v0, heading, steps, fair: bool = True):
+        """Eq. (xi_r), smoothing and speed planning: (integration, xy, s, kappa, v). Without ``fair``
+        (a pass that only times the points) the path is not faired and its speed plan takes the
+        curvature at most kappa_max, as the faired path's would."""
         p = self.params
         length = prepared.s_end - prepared.s0
         res: Integration = integrate(field, prepared.grid, start, prepared.x_end, p.beta, p.epsilon,
@@ -458,11 +467,11 @@ class GuidancePlanner(PlannerBase):
         times = steps if steps is not None and len(steps) else None
         xy = self.safe_smooth(res.xy, field.statics + field.movers, t0, times, field.path)
         goal = prepared.ends_path and res.reached
-        xy = self.faired(xy, field.statics + field.movers, t0, times, heading, pin_end=goal)
+        if fair:
+            xy = self.faired(xy, field.statics + field.movers, t0, times, heading, pin_end=goal)
         s, kappa, v = plan_speed(xy, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
-                                 v_end=0.0 if goal else None)
+                                 v_end=0.0 if goal else None, kappa_cap=np.inf if fair else self.kappa_max)
         return res, xy, s, kappa, v
-
 
     def plan(self, prepared: Prepared, start: np.ndarray, t0: float, v0: float,
              movers: Sequence[ObstacleState] = (), heading: float | None = None) -> GuidancePlan:
@@ -484,15 +493,20 @@ class GuidancePlanner(PlannerBase):
                  h: np.ndarray | None, movers: Sequence[ObstacleState]) -> GuidancePlan:
         """The field's plan with ``field``'s movers (``movers`` their states): integrated, placed at the
         last pass's times, then slowed to follow a mover it cannot pass, or made tight."""
-        res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h, None)
-        for _ in range(MOVER_PASSES if movers else 0):  # place moving obstacles at the last pass's times
+        passes = MOVER_PASSES if movers else 0
+        res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h, None, fair=passes == 0)
+        for k in range(passes):     # place moving obstacles at the last pass's times; fair the last two
             res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h,
-                                                            step_times(s, v, t0, self.params.beta))
+                                                            step_times(s, v, t0, self.params.beta),
+                                                            fair=k >= passes - 2)
         trajectory = timed_trajectory(xy, s, v, t0, self.dt)
         if field.movers and self.meets_mover(field.movers, trajectory, FOLLOW_SLACK):
-            slower = self.followed(field.movers, xy, t0, v0, _stops(v))
+            lane = self._integrate_and_time(replace(field, movers=[]), prepared, start, t0, v0, h, None)
+            slower = self.followed(field.movers, [(lane[1], _stops(lane[4])), (xy, _stops(v))], t0, v0)
             if slower is not None:
-                s, kappa, v, trajectory = slower
+                if slower[0] is lane[1]:
+                    res = lane[0]
+                xy, s, kappa, v, trajectory = slower
         else:       # a path the field found to pass: as tight as the clearances let it
             tight = self.tightened(prepared, movers, xy, s, v, t0, v0, h, prepared.ends_path and res.reached)
             if tight is not None:

@@ -17,6 +17,8 @@ M_b = ex R_actl ∩ in R_vrtl, 1 elsewhere (and 0 on Q_vrtl and inside it, its l
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 E = np.array([[0.0, -1.0], [1.0, 0.0]])  # rotation by +90 deg
@@ -32,6 +34,15 @@ def bump(varphi: np.ndarray, c: float, l1: float, l2: float) -> tuple[np.ndarray
         z = l1 / (c - v) - l2 / v  # log f1 - log f2
         cup[mid] = 0.5 * (1.0 + np.tanh(0.5 * z))  # logistic(z), stable for any z
     return cup, 1.0 - cup
+
+
+def cup_at(varphi: float, c: float, l1: float, l2: float) -> float:
+    """``bump``'s cup_Q at one value, in plain floats (cap_R = 1 - cup_Q)."""
+    if varphi >= 0.0:
+        return 1.0
+    if varphi <= c:
+        return 0.0
+    return 0.5 * (1.0 + math.tanh(0.5 * (l1 / (c - varphi) - l2 / varphi)))
 
 
 def guiding(gamma: float, k: float, phi: np.ndarray, grad: np.ndarray) -> np.ndarray:

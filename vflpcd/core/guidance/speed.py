@@ -9,6 +9,8 @@ dt = 2 ds / (v_k + v_{k+1}).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -38,28 +40,30 @@ def signed_curvature(xy: np.ndarray) -> np.ndarray:
 
 
 def plan_speed(xy: np.ndarray, v_desired: float, a_lat_max: float, a_accel: float, a_decel: float,
-               v_start: float, v_end: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               v_start: float, v_end: float | None = None,
+               kappa_cap: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Speed profile for the path xy (K, d): returns (s (K,), kappa (K,), v (K,)).
 
     kappa is the largest Menger curvature of each point and its two neighbours (a
     conservative estimate); v_start is the robot's speed (the profile starts no faster),
-    v_end the speed required at the last point (None: free).
+    v_end the speed required at the last point (None: free). ``kappa_cap``: the curvature the
+    centripetal limit takes at most (a path that its fairing will bring within it).
     """
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
     k = menger_curvature(xy)
     kappa = np.maximum(k, np.maximum(np.roll(k, 1), np.roll(k, -1)))
     kappa[0], kappa[-1] = max(k[0], k[min(1, len(k) - 1)]), max(k[-1], k[max(len(k) - 2, 0)])
     with np.errstate(divide="ignore"):
-        v = np.minimum(v_desired, np.sqrt(a_lat_max / np.maximum(kappa, 1e-12)))
-    ds = np.diff(s)
+        v = np.minimum(v_desired, np.sqrt(a_lat_max / np.clip(kappa, 1e-12, kappa_cap))).tolist()
+    ds = np.diff(s).tolist()
     v[0] = min(v[0], max(v_start, 0.0))
     for i in range(len(v) - 1):  # forward: acceleration limit
-        v[i + 1] = min(v[i + 1], np.sqrt(v[i] ** 2 + 2.0 * a_accel * ds[i]))
+        v[i + 1] = min(v[i + 1], math.sqrt(v[i] ** 2 + 2.0 * a_accel * ds[i]))
     if v_end is not None:
         v[-1] = min(v[-1], v_end)
     for i in range(len(v) - 2, -1, -1):  # backward: deceleration limit
-        v[i] = min(v[i], np.sqrt(v[i + 1] ** 2 + 2.0 * a_decel * ds[i]))
-    return s, kappa, v
+        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2.0 * a_decel * ds[i]))
+    return s, kappa, np.array(v)
 
 
 def arrival_times(s: np.ndarray, v: np.ndarray) -> np.ndarray:

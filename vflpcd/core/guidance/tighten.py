@@ -142,12 +142,14 @@ def body_half_planes(x: np.ndarray, times: np.ndarray, body: Body, keepouts: Seq
 
 def tighten_path(xy: np.ndarray, times: np.ndarray, anchor: Callable[[np.ndarray], np.ndarray], kappa_max: float,
                  body: Body, keepouts: Sequence[Keepout], length: float, heading: np.ndarray | None = None,
-                 pin_end: bool = False, field_times: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+                 pin_end: bool = False, field_times: np.ndarray | None = None,
+                 loop=None) -> tuple[np.ndarray, np.ndarray] | None:
     """The tight path of xy (K, d), reached at times (K,) (module docstring): (points, their times)
     resampled at ``SPACING``, or None when no stiffness up to ``STIFFER`` x length gives one within
     kappa_max that keeps the clearances. ``anchor`` maps points to the reference path's nearest
     points; moving keepouts are taken where they are when each point is reached (at ``times``; the
-    field's own path, whose closeness the tight path may match, at ``field_times``, default times)."""
+    field's own path, whose closeness the tight path may match, at ``field_times``, default times);
+    ``loop``: ``fairing.solve_active_set``'s."""
     if len(xy) < 7 or not length > 0:
         return None
     r, t = resample(xy, times, SPACING)
@@ -162,7 +164,7 @@ def tighten_path(xy: np.ndarray, times: np.ndarray, anchor: Callable[[np.ndarray
         x, active = r, None
         for _ in range(OUTER_ROUNDS + 1):
             n, b = body_half_planes(x, t, body, keepouts, slack)
-            x, active = solve_active_set(road, eps, n, b, x, pin_end, active, shape=road, pins=r)
+            x, active = solve_active_set(road, eps, n, b, x, pin_end, active, shape=road, pins=r, loop=loop)
         clear = np.all(disc_gaps(x, body, keepouts, t)[2:] + slack[2:] > -CLEAR_TOLERANCE)
         if clear and np.max(menger_curvature(x)) <= kappa_max:
             return x, t

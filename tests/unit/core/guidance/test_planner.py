@@ -295,9 +295,10 @@ def test_a_plan_into_a_slow_car_it_cannot_pass_is_slowed_to_follow_it(params):
     lead = [mover(20.0, 3.0)]
     s, kappa, v = plan_speed(xy, 7.0, 3.0, params.a_accel, params.a_decel, 7.0)
     assert planner.meets_mover(lead, timed_trajectory(xy, s, v, 0.0, 0.05), FOLLOW_SLACK)
-    s, kappa, v, trajectory = planner.followed(lead, xy, 0.0, 7.0, False)
+    path_xy, s, kappa, v, trajectory = planner.followed(lead, [(xy, False)], 0.0, 7.0)
+    assert path_xy is xy
     assert not planner.meets_mover(lead, trajectory) and v.max() <= 7.0 and v[-1] < 3.5
-    assert planner.followed([mover(60.0, -7.0)], xy, 0.0, 7.0, False) is None
+    assert planner.followed([mover(60.0, -7.0)], [(xy, False)], 0.0, 7.0) is None
 
 
 def test_a_graze_of_a_movers_region_is_not_a_conflict_to_follow(params):
@@ -354,3 +355,20 @@ def test_a_plan_that_starts_beside_its_path_has_no_yaw_rate_spike_where_the_smoo
     omega = plan.trajectory.omega[:60]
     spike = np.abs(omega[1:-1] - 0.5 * (omega[:-2] + omega[2:]))
     assert np.max(spike) < limit, np.round(omega, 3)
+
+
+def test_a_slow_car_that_cannot_be_passed_is_followed_in_the_lane(params):
+    """A car 30 m ahead at 3 m/s and a stream of oncoming cars in the other lane: the field's path
+    round the slow car meets the stream, so the plan follows, and it follows on the lane (the plan
+    without the movers), not crawling along the swerve it could not take."""
+    path = ReferencePath.line([0.0, 0.0], [150.0, 0.0])
+    planner = GuidancePlanner(path, params, 7.0, 3.0, 1.25, 0.05)
+
+    def car(oid, x, y, vx):
+        return ObstacleState(id=oid, shape=Box(4.5, 1.9), center=np.array([x, y]), yaw=0.0,
+                             velocity=np.array([vx, 0.0]), stamp=0.0)
+
+    movers = [car("slow", 30.0, 0.0, 3.0)] + [car(f"on{k}", 40.0 + 30.0 * k, 3.5, -7.0) for k in range(5)]
+    plan = planner.plan(planner.prepare(0.0, []), np.array([0.0, 0.0]), 0.0, 7.0, movers, heading=0.0)
+    assert np.max(np.abs(plan.xy[:, 1])) < 0.05
+    assert plan.v.max() < 7.0 and not planner.meets_mover(plan.field.movers, plan.trajectory)
