@@ -207,13 +207,21 @@ class ReferencePath:
                 i0 = len(self._seg_vec) - 1 if lo > 0 else 0
                 i1 = i0 + 1
             return slice(i0, i1)
+        if span >= self.length:
+            return np.arange(len(self._seg_vec))
         starts, ends = self.s[:-1], self.s[1:]
-        if span < self.length:                # modulo the length
-            rel_start = np.mod(starts - lo, self.length)
-            rel_end = np.mod(ends - lo, self.length)
-            idx = np.nonzero((rel_start <= span) | (rel_end <= span) | (rel_end < rel_start))[0]
+        L, lo = self.length, lo % self.length
+        a, b = lo - 1e-9, lo + span + 1e-9   # the window modulo L (a segment touching an end within rounding counts)
+        i0 = int(np.searchsorted(ends, max(a, 0.0), side="left"))      # the first segment ending at or after a
+        i1 = int(np.searchsorted(starts, min(b, L), side="right"))     # past the last one starting by b
+        if b > L:                             # across the seam: the path's start too
+            i0, head = min(i0, int(np.searchsorted(starts, b - L, side="right"))), i0
+            idx = np.concatenate([np.arange(i0), np.arange(head, i1)]) if i0 < head else np.arange(i1)
+        elif a < 0.0:                         # across the seam: the path's end too
+            tail = max(i1, int(np.searchsorted(ends, a + L, side="left")))
+            idx = np.concatenate([np.arange(i0, i1), np.arange(tail, len(starts))])
         else:
-            idx = np.arange(len(self._seg_vec))
+            idx = np.arange(i0, i1)
         if idx.size == 0:
             idx = np.array([len(self._seg_vec) - 1 if lo > 0 else 0])
         return idx

@@ -91,6 +91,27 @@ def test_the_nearest_segment_loop_gives_the_numpy_searchs_arc_length(closed):
     assert path.arc_length_of(path.points[3], None, loop=nearest_segment) == path.project(path.points[3]).s
 
 
+@pytest.mark.parametrize("back, ahead", [(10.0, 30.0), (0.0, 5.0), (3.0, 0.0), (60.0, 40.0)])
+def test_a_closed_paths_search_window_holds_every_segment_that_overlaps_it(back, ahead):
+    """On a closed path the searched segments (by the sorted arc lengths, across the seam too) are
+    those whose [s_i, s_i+1] meets [hint - back, hint + ahead] modulo the length (a segment that
+    touches an end within 1e-9 m may count), in increasing order, for hints on and off vertices."""
+    path = ReferencePath.arc([0.0, 0.0], 20.0, 0.0, 2 * np.pi)
+    L, starts, ends = path.length, path.s[:-1], path.s[1:]
+    rng = np.random.default_rng(2)
+    for hint in (*rng.uniform(-30.0, L + 30.0, 300), *path.s, *(path.s + back), *(path.s - ahead)):
+        idx = np.asarray(path._searched(hint, back, ahead))
+        assert np.all(np.diff(idx) > 0)
+        lo = (hint - back) % L
+        rel_start, rel_end = (starts - lo) % L, (ends - lo) % L
+        span = back + ahead
+        overlaps = (rel_start <= span) | (rel_end <= span) | (rel_end < rel_start)
+        near_end = np.minimum.reduce([np.abs(rel_start - span), np.abs(rel_end - span), np.minimum(rel_end, L - rel_end),
+                                      np.minimum(rel_start, L - rel_start)]) < 1e-8
+        assert set(np.flatnonzero(overlaps)) <= set(idx)
+        assert set(idx) <= set(np.flatnonzero(overlaps | near_end))
+
+
 def test_unit_differences_are_np_gradients_directions():
     def directions(p):
         g = np.gradient(p, axis=0)
