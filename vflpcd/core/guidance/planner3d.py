@@ -10,6 +10,7 @@ planar construction and are not used in 3-D; the centripetal limit is met by spe
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from typing import Sequence
 
@@ -19,7 +20,7 @@ from vflpcd.core.guidance.field3d import GraphPath3D, GuidanceField3D, Obstacle3
 from vflpcd.core.guidance.grid import BACKWARDS, step_time
 from vflpcd.core.guidance.implicit import GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.planner import MOVER_PASSES, GuidancePlan, PlannerBase
-from vflpcd.core.guidance.primitives import bump
+from vflpcd.core.guidance.primitives import cup_at
 from vflpcd.core.guidance.speed import plan_speed, step_times
 from vflpcd.core.guidance.trajectory import timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
@@ -111,38 +112,42 @@ class GuidancePlanner3D(PlannerBase):
         obstacles = field.statics + field.movers
         gammas: list[float | None] = [None] * len(obstacles)
         po, pd = field.path.progress_frame()
-        x = start.copy()
-        pts, prev, inherited = [x.copy()], None, 0
+        x, y, z = (float(v) for v in start)
+        pts, prev, inherited = [(x, y, z)], None, 0
+        # per obstacle, in plain floats: its centre at its stamp, velocity, stamp, squared reach
+        placed = [(ob, *ob.implicit.center.tolist(), *ob.implicit.velocity.tolist(), ob.implicit.stamp,
+                   ob.implicit.reach ** 2) for ob in obstacles]
         for k in range(max_steps):
             t = step_time(k, t0, p.beta, speed, step_times)
-            q = x[None, :]
-            chi_p = field.path_unit(q)[0]
-            P, V = 1.0, np.zeros(3)
-            for n, ob in enumerate(obstacles):
-                if np.linalg.norm(x - ob.implicit.center_at(t)) > ob.implicit.reach:
+            P, Vx, Vy, Vz = 1.0, 0.0, 0.0, 0.0
+            for n, (ob, cx, cy, cz, vx, vy, vz, stamp, reach2) in enumerate(placed):
+                dt = t - stamp
+                if (x - cx - vx * dt) ** 2 + (y - cy - vy * dt) ** 2 + (z - cz - vz * dt) ** 2 > reach2:
                     continue
                 if gammas[n] is None:
-                    phi0 = ob.implicit.value(q, t)[0]
+                    phi0, chi0 = field.repulsive_unit_at(ob, ob.gamma, x, y, z, t)
                     if phi0 >= 0.0:
                         continue
-                    _, chi0 = field.repulsive_unit(ob, ob.gamma, q, t)  # first entry: keep unless backwards
-                    gammas[n] = -ob.gamma if chi0[0] @ field.path.tangent(x) < BACKWARDS else ob.gamma
-                phi, chi = field.repulsive_unit(ob, gammas[n], q, t)
-                cup, cap = bump(phi, ob.implicit.c, field.l1, field.l2)
-                P *= cup[0]
-                V += cap[0] * chi[0]
-            chi = P * chi_p + V
-            norm = float(np.linalg.norm(chi))
+                    tangent = field.path.tangent(np.array([x, y, z]))      # first entry: keep unless backwards
+                    along = chi0[0] * tangent[0] + chi0[1] * tangent[1] + chi0[2] * tangent[2]
+                    gammas[n] = -ob.gamma if along < BACKWARDS else ob.gamma
+                phi, chi = field.repulsive_unit_at(ob, gammas[n], x, y, z, t)
+                cup = cup_at(phi, ob.implicit.c, field.l1, field.l2)
+                P *= cup
+                Vx, Vy, Vz = Vx + (1.0 - cup) * chi[0], Vy + (1.0 - cup) * chi[1], Vz + (1.0 - cup) * chi[2]
+            ux, uy, uz = field.path_unit_at(x, y, z)
+            cx_, cy_, cz_ = P * ux + Vx, P * uy + Vy, P * uz + Vz
+            norm = math.sqrt(cx_ * cx_ + cy_ * cy_ + cz_ * cz_)
             if norm < p.epsilon:  # the paper's rule at singular points
                 if prev is None:
-                    raise GuidanceError(f"the field vanishes at the start {x.round(2).tolist()} and there is no "
-                                        "heading to inherit")
+                    raise GuidanceError(f"the field vanishes at the start {[round(x, 2), round(y, 2), round(z, 2)]} "
+                                        "and there is no heading to inherit")
                 u, inherited = prev, inherited + 1
             else:
-                u = chi / norm
+                u = (cx_ / norm, cy_ / norm, cz_ / norm)
                 prev = u
-            x = x + p.beta * u
-            pts.append(x.copy())
-            if (x - po) @ pd >= x_end:
+            x, y, z = x + p.beta * u[0], y + p.beta * u[1], z + p.beta * u[2]
+            pts.append((x, y, z))
+            if (x - po[0]) * pd[0] + (y - po[1]) * pd[1] + (z - po[2]) * pd[2] >= x_end:
                 return np.asarray(pts), True, inherited, tuple(gammas)
         return np.asarray(pts), False, inherited, tuple(gammas)

@@ -111,3 +111,26 @@ def test_uav_3d_scenario_plan_keeps_clear_of_every_obstacle(uav):
         centers = o.center[None, :] + o.velocity[None, :] * (traj.t - o.stamp)[:, None]
         gaps = [o.shape.signed_distance(p[None, :], c, o.yaw)[0] for p, c in zip(traj.pos, centers)]
         assert min(gaps) - uav.footprint.radius > 0.3, o.id
+
+
+def test_the_per_point_field_in_plain_floats_is_the_vectorised_one(uav):
+    """path_unit_at and repulsive_unit_at (the integration's per-step forms: splines by Horner's
+    rule, superquadrics in floats) against path_unit and repulsive_unit, on and off the path, beyond
+    the spline's ends (its linear extension), for a moving box, cylinder and ellipsoid."""
+    planner = GuidancePlanner3D(uav.path, uav.guidance, 1.0, 2.0, 0.3, 0.02)
+    shapes = (Box3(1.0, 2.0, 1.5), Cylinder(0.8, 2.0), Ellipsoid(1.0, 0.6, 0.8))
+    movers = [ObstacleState(f"o{k}", sh, uav.path.point_at(8.0 + 7.0 * k), 0.4 * k, np.array([0.3, -0.2, 0.1]), 0.5)
+              for k, sh in enumerate(shapes)]
+    field = planner.prepare(0.0, []).field
+    rng = np.random.default_rng(4)
+    pts = uav.path.point_at(rng.uniform(0.0, uav.path.length, 200)) + rng.normal(0.0, 2.0, (200, 3))
+    pts = np.vstack([pts, field.path.origin + np.array([[-20.0, 1.0, 1.0], [80.0, -1.0, 2.0]]) @ field.path.R.T])
+    for p in pts:
+        np.testing.assert_allclose(field.path_unit_at(*p), field.path_unit(p[None])[0], atol=1e-13)
+    for o in movers:
+        ob = planner.obstacle(planner.implicit(o), 0.0)
+        for p in pts[:60] * 0.2 + 0.8 * ob.implicit.center:
+            phi, chi = field.repulsive_unit(ob, ob.gamma, p[None], 1.3)
+            phi_at, chi_at = field.repulsive_unit_at(ob, ob.gamma, *p, 1.3)
+            assert abs(phi_at - phi[0]) <= 1e-13 * max(1.0, abs(phi[0]))
+            np.testing.assert_allclose(chi_at, chi[0], atol=1e-12)
