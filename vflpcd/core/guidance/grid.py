@@ -2,7 +2,7 @@
 
     xi_{k+1} = xi_k + beta chi_c(xi_{k,grid}),  xi_{k,grid} = argmin_{xi_g in G} |xi_k - xi_g|
 
-A global grid holds chi_P^; each static actual obstacle has a local grid over its reactive
+A global grid holds chi_P^ (filled block by block where the integration goes); each static actual obstacle has a local grid over its reactive
 region's bounding box holding cup_Q_i and chi_R_i^ for both directions gamma_i = +1 and -1
 (all cells computed at once). A step multiplies and adds the terms of the obstacles whose grids
 contain xi_k, adds the virtual and moving obstacles' terms evaluated at xi_k, normalises and -
@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -52,18 +53,48 @@ class Grid:
                 float(self.origin[1]), float(self.origin[1] + (ny - 1) * self.h))
 
 
+BLOCK = 32  # cells on a side of the blocks in which the path's grid is filled
+
+
+@dataclass(frozen=True)
+class PathGrid(Grid):
+    """The global chi_P^ grid (2 channels), filled a block of ``BLOCK`` x ``BLOCK`` cells at a time
+    when the integration first reaches the block (``cell``): the corridor is wide (8 m beside the
+    path, the obstacles' reactive regions) and a plan visits a small part of it. A block's cells
+    are those of the whole grid, evaluated by the same vectorised ``unit_at``."""
+
+    xs: np.ndarray = None
+    ys: np.ndarray = None
+    unit_at: Callable[[np.ndarray], np.ndarray] = None
+    filled: list = None
+
+    @classmethod
+    def lazy(cls, bounds: tuple[float, float, float, float], h: float, unit_at) -> "PathGrid":
+        xmin, xmax, ymin, ymax = bounds
+        xs, ys = np.arange(xmin, xmax + 0.5 * h, h), np.arange(ymin, ymax + 0.5 * h, h)
+        filled = [[False] * -(-len(ys) // BLOCK) for _ in range(-(-len(xs) // BLOCK))]
+        return cls(np.array([xs[0], ys[0]]), h, np.empty((len(xs), len(ys), 2)), xs, ys, unit_at, filled)
+
+    def fill(self, bi: int, bj: int) -> None:
+        """Compute block (bi, bj)."""
+        xs, ys = self.xs[bi * BLOCK:(bi + 1) * BLOCK], self.ys[bj * BLOCK:(bj + 1) * BLOCK]
+        X, Y = np.meshgrid(xs, ys, indexing="ij")
+        self.data[bi * BLOCK:(bi + 1) * BLOCK, bj * BLOCK:(bj + 1) * BLOCK] = \
+            self.unit_at(np.column_stack([X.ravel(), Y.ravel()])).reshape(len(xs), len(ys), 2)
+        self.filled[bi][bj] = True
+
+
 @dataclass(frozen=True)
 class FieldGrid:
-    """The global chi_P^ grid (2 channels) and one local grid per static obstacle
-    (5 channels: cup_Q, chi_R^ for gamma = +1, chi_R^ for gamma = -1)."""
+    """The global chi_P^ grid (2 channels, filled as the integration reaches it) and one local grid
+    per static obstacle (5 channels: cup_Q, chi_R^ for gamma = +1, chi_R^ for gamma = -1)."""
 
-    path: Grid
+    path: PathGrid
     obstacles: tuple[Grid, ...]
 
     @classmethod
     def build(cls, field: GuidanceField, bounds: tuple[float, float, float, float], h: float) -> "FieldGrid":
-        pts, shape = Grid.cells(bounds, h)
-        path = Grid(np.array([bounds[0], bounds[2]]), h, field.path_unit(pts).reshape(*shape, 2))
+        path = PathGrid.lazy(bounds, h, field.path_unit)
         local = []
         for term in field.statics:
             o = term.implicit
@@ -118,7 +149,7 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
     pg = grid.path
     ox, oy, h = float(pg.origin[0]), float(pg.origin[1]), pg.h
     nx, ny = pg.data.shape[:2]
-    pdata = pg.data
+    pdata, filled = pg.data, pg.filled
     inv_h = 1.0 / h
     # per obstacle: origin, the float cell-index limits (nx - 0.5, ny - 0.5), data, the side rule's gamma
     local = [(float(g.origin[0]), float(g.origin[1]), g.data.shape[0] - 0.5, g.data.shape[1] - 0.5, g.data, term.gamma)
@@ -143,6 +174,8 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
         if not (0.0 <= fi < nx and 0.0 <= fj < ny):
             raise GuidanceError(f"the planned path left the grid at ({x:.2f}, {y:.2f}); grid bounds {pg.bounds}")
         i, j = int(fi), int(fj)
+        if not filled[i // BLOCK][j // BLOCK]:
+            pg.fill(i // BLOCK, j // BLOCK)
         cpx, cpy = pdata.item(i, j, 0), pdata.item(i, j, 1)
         P, Vx, Vy = 1.0, 0.0, 0.0
         for n, (gx0, gy0, gnx, gny, gdata, gamma_side) in enumerate(local):
