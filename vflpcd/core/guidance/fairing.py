@@ -53,10 +53,23 @@ RELEASE = 1e-13  # m: an active point held this far outside (multiplier -PENALTY
 @dataclass(frozen=True)
 class Region:
     """One repulsive region: value_grad(points (K, d), times (K,)) -> (varphi (K,), grad (K, d))
-    at the times the points are reached, and its repulsive level c < 0 (Q: varphi <= c)."""
+    at the times the points are reached, and its repulsive level c < 0 (Q: varphi <= c);
+    ``near(points, times)`` -> (K,) bool, a cheap bound: False only where the point is outside the
+    reactive region (None: every point may be inside)."""
 
     value_grad: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
     c: float
+    near: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+
+    def values(self, x: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """varphi at points x (K, d) reached at t (K,); +inf where ``near`` rules a point out."""
+        if self.near is None:
+            return self.value_grad(x, t)[0]
+        v = np.full(len(x), np.inf)
+        idx = np.flatnonzero(self.near(x, t))
+        if idx.size:
+            v[idx] = self.value_grad(x[idx], t[idx])[0]
+        return v
 
 
 def resample(xy: np.ndarray, times: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -76,7 +89,7 @@ def half_planes(x: np.ndarray, t: np.ndarray, regions: Sequence[Region]) -> tupl
     worst = np.full(len(x), np.inf)
     for region in regions:
         c = region.c
-        v, _ = region.value_grad(x, t)
+        v = region.values(x, t)
         near = np.nonzero((v < 0.0) & (v / c < worst))[0]  # v / c: 1 on Q_i, 0 on R_i
         if near.size == 0:
             continue
@@ -227,7 +240,7 @@ def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequ
         for _ in range(OUTER_ROUNDS):
             n, b = half_planes(x, t, regions)
             x, active = solve_active_set(r, eps, n, b, x, pin_end, active, loop=loop)
-        clear = all(np.all(r.value_grad(x, t)[0][2:-2] > r.c) for r in regions)
+        clear = all(np.all(r.values(x, t)[2:-2] > r.c) for r in regions)
         kappa = np.max(menger_curvature(x))
         if clear and kappa < best_kappa:
             best, best_kappa = x, kappa

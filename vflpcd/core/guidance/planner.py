@@ -203,7 +203,8 @@ class PlannerBase:
                heading: np.ndarray | None = None, pin_end: bool = False) -> np.ndarray:
         """xy (K, d) with its curvature brought within kappa_max around the terms' repulsive regions,
         leaving the start along ``heading`` (d,) when given, ending where it ends with ``pin_end``."""
-        regions = [Region(partial(_value_grad_at_times, term.implicit), term.implicit.c) for term in terms]
+        regions = [Region(partial(_value_grad_at_times, term.implicit), term.implicit.c,
+                          partial(_within_reach, term.implicit)) for term in terms]
         return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, regions, heading, pin_end,
                          self.qp_loop)
 
@@ -336,6 +337,12 @@ def _at_stamp(o: ObstacleImplicit, pts: np.ndarray, t: np.ndarray) -> np.ndarray
     """Points (K, d) reached at times t (K,) moved into the frame of the obstacle at its stamp: a
     centre moving at constant velocity gives varphi(p, t) = varphi(p - v (t - stamp), stamp)."""
     return pts - (np.asarray(t)[:, None] - o.stamp) * o.velocity
+
+
+def _within_reach(o: ObstacleImplicit, pts: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Whether points (K, d) reached at times (K,) lie within o's reach of its centre then (outside
+    it they are outside its reactive region)."""
+    return np.einsum("ij,ij->i", d := _at_stamp(o, pts, t) - o.center, d) < o.reach ** 2
 
 
 def _value_grad_at_times(o: ObstacleImplicit, pts: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -490,9 +497,10 @@ class GuidancePlanner(PlannerBase):
         return self._planned(prepared, field, start, t0, v0, h, movers)
 
     def _planned(self, prepared: Prepared, field: GuidanceField, start: np.ndarray, t0: float, v0: float,
-                 h: np.ndarray | None, movers: Sequence[ObstacleState]) -> GuidancePlan:
+                 h: np.ndarray | None, movers: Sequence[ObstacleState], may_follow: bool = True) -> GuidancePlan | None:
         """The field's plan with ``field``'s movers (``movers`` their states): integrated, placed at the
-        last pass's times, then slowed to follow a mover it cannot pass, or made tight."""
+        last pass's times, then slowed to follow a mover it cannot pass (None instead without
+        ``may_follow``), or made tight."""
         passes = MOVER_PASSES if movers else 0
         res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h, None, fair=passes == 0)
         for k in range(passes):     # place moving obstacles at the last pass's times; fair the last two
@@ -501,6 +509,8 @@ class GuidancePlanner(PlannerBase):
                                                             fair=k >= passes - 2)
         trajectory = timed_trajectory(xy, s, v, t0, self.dt)
         if field.movers and self.meets_mover(field.movers, trajectory, FOLLOW_SLACK):
+            if not may_follow:
+                return None
             lane = self._integrate_and_time(replace(field, movers=[]), prepared, start, t0, v0, h, None)
             slower = self.followed(field.movers, [(lane[1], _stops(lane[4])), (xy, _stops(v))], t0, v0)
             if slower is not None:
@@ -521,22 +531,30 @@ class GuidancePlanner(PlannerBase):
         """The plan that yields to the movers crossing the route: planned as if they were not there
         (no swerve round them), then slowed before the first point where its path comes within a
         crossing mover's reach of that mover's line of motion, to ``FOLLOW_SPEEDS`` of v_desired
-        (fastest first), until its timed trajectory meets no mover; after that point it speeds up
-        again. None when no such speed exists (the field's plan passes behind them then)."""
+        (fastest first), until its timed trajectory meets no crossing mover and comes no closer to the
+        others than the unslowed plan (or than their tight clearance); after that point it speeds up
+        again. None when the plan must follow another mover or no such speed exists (the field's
+        plan passes behind the crossers then)."""
         ids = {o.id for o in crossing}
         others = [o for o in movers if o.id not in ids]
         own = replace(field, movers=[term for term in field.movers if term.implicit.name not in ids])
-        plan = self._planned(prepared, own, start, t0, v0, h, others)
-        if self.meets_mover(own.movers, plan.trajectory):
-            return None                  # it must follow or pass another mover: the field's plan decides
-        entry = _crossing_entry(plan.xy, plan.s, [term.implicit for term in field.movers
-                                                  if term.implicit.name in ids], t0)
+        plan = self._planned(prepared, own, start, t0, v0, h, others, may_follow=False)
+        if plan is None:
+            return None                  # it must follow another mover: the field's plan decides
+        crossers = [term for term in field.movers if term.implicit.name in ids]
+        entry = _crossing_entry(plan.xy, plan.s, [term.implicit for term in crossers], t0)
+        near = [Keepout(o, self.tight_clearance(o)) for o in others]
+        if near:                # slowed, it comes no closer to the others than the plan does (or their clearance)
+            floor = min(0.0, float(np.min(disc_gaps(plan.trajectory.pos, self.body, near, plan.trajectory.t))))
         p = self.params
         for f in (1.0,) + FOLLOW_SPEEDS:
             cap = np.where(plan.s < entry, f * self.v_desired, self.v_desired)
             s, kappa, v = plan_speed(plan.xy, cap, self.a_lat_max, p.a_accel, p.a_decel, v0,
                                      v_end=0.0 if _stops(plan.v) else None)
             trajectory = timed_trajectory(plan.xy, s, v, t0, self.dt)
-            if not self.meets_mover(field.movers, trajectory):
-                return replace(plan, trajectory=trajectory, s=s, kappa=kappa, v=v, field=field)
+            if self.meets_mover(crossers, trajectory):
+                continue
+            if near and np.min(disc_gaps(trajectory.pos, self.body, near, trajectory.t)) < floor - CLEAR_TOLERANCE:
+                continue
+            return replace(plan, trajectory=trajectory, s=s, kappa=kappa, v=v, field=field)
         return None
