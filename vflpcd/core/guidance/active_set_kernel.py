@@ -6,7 +6,9 @@ right-hand side f (the minimiser of the free problem solves M x = f), subject to
 per point, n_k' x_k >= b_k, for the points with ``constrained[k]``. An active half-plane is held
 by a stiff spring: ``penalty`` (n_k n_k') is added to M's block k and ``penalty`` b_k n_k to f_k,
 so each round is one banded Cholesky factorisation and two triangular solves, and the spring's
-stretch gap_k = n_k' x_k - b_k < 0 is the half-plane's multiplier over ``penalty``.
+stretch gap_k = n_k' x_k - b_k < 0 is the half-plane's multiplier over ``penalty``. A round
+factorises again only from the first point whose spring changed since the last: the columns before
+it, their factor and the forward solve there are the same numbers.
 
 Two phases (Nocedal and Wright, Numerical Optimization, algorithm 16.3, for the second):
 
@@ -41,18 +43,28 @@ def solve_loop(low0, f0, n, b, constrained, active, x, rounds, penalty, violatio
     N = K * d
     u = low0.shape[0] - 1
     low = np.empty_like(low0)
+    y = np.empty(N)
     xs = np.empty(N)
+    factored = np.zeros(K, dtype=np.bool_)     # the active set that low and y were computed for
+    k0 = 0                                     # the first point whose spring changed since (all at first)
     feasible = False
     for r in range(rounds):
-        low[:, :] = low0
-        xs[:] = f0
-        for k in range(K):           # the springs of the active half-planes
+        if r > 0:
+            k0 = K
+            for k in range(K):
+                if active[k] != factored[k]:
+                    k0 = k
+                    break
+        j0 = k0 * d          # the matrix, its factor and L y = f are unchanged before column j0
+        low[:, j0:] = low0[:, j0:]
+        y[j0:] = f0[j0:]
+        for k in range(k0, K):      # the springs of the active half-planes
             if active[k]:
                 for j1 in range(d):
-                    xs[k * d + j1] += penalty * b[k] * n[k, j1]
+                    y[k * d + j1] += penalty * b[k] * n[k, j1]
                     for j2 in range(j1, d):
                         low[j2 - j1, k * d + j1] += penalty * n[k, j1] * n[k, j2]
-        for j in range(N):           # banded Cholesky M = L L', L in place of low
+        for j in range(j0, N):      # banded Cholesky M = L L', L in place of low
             s = low[0, j]
             for m in range(1, min(u, j) + 1):
                 s -= low[m, j - m] * low[m, j - m]
@@ -65,11 +77,14 @@ def solve_loop(low0, f0, n, b, constrained, active, x, rounds, penalty, violatio
                 for m in range(1, min(u - (i - j), j) + 1):
                     s -= low[i - j + m, j - m] * low[m, j - m]
                 low[i - j, j] = s / pivot
-        for i in range(N):           # L y = f
-            s = xs[i]
+        for i in range(j0, N):      # L y = f
+            s = y[i]
             for m in range(1, min(u, i) + 1):
-                s -= low[m, i - m] * xs[i - m]
-            xs[i] = s / low[0, i]
+                s -= low[m, i - m] * y[i - m]
+            y[i] = s / low[0, i]
+        for k in range(K):
+            factored[k] = active[k]
+        xs[:] = y
         for i in range(N - 1, -1, -1):   # L' x* = y
             s = xs[i]
             for m in range(1, min(u, N - 1 - i) + 1):

@@ -99,15 +99,22 @@ def _sd_grad(k: Keepout, pts: np.ndarray, times: np.ndarray) -> tuple[np.ndarray
 
 def disc_gaps(x: np.ndarray, body: Body, keepouts: Sequence[Keepout], times: np.ndarray | None = None) -> np.ndarray:
     """Per point of x (K, d), reached at ``times`` (K,) (only moving keepouts need them), the least
-    sd(disc centre) - radius - clearance over the discs and keepouts (K,) (+inf without keepouts):
-    negative where a disc is closer than the clearance."""
+    sd(disc centre) - radius - clearance over the discs and keepouts (K,): negative where a disc is
+    closer than the clearance. A keepout whose shape's bounding circle keeps every disc of a point
+    beyond the clearance is not evaluated there (its gap is positive); +inf where none is."""
     t = unit_differences(x)
     times = np.zeros(len(x)) if times is None else times
     gap = np.full(len(x), np.inf)
+    body_reach = float(np.max(np.abs(body.offsets))) + body.radius
     for k in keepouts:
+        far = body_reach + k.clearance + k.obstacle.shape.bounding_radius()
+        idx = np.flatnonzero(np.einsum("ij,ij->i", d := x - k.centres(times), d) <= far * far)
+        if idx.size == 0:
+            continue
+        xi, ti, tk = x[idx], t[idx], times[idx]
         for o_j in body.offsets:
-            sd = k.signed_distance(x + o_j * t, times)
-            gap = np.minimum(gap, sd - body.radius - k.clearance)
+            sd = k.signed_distance(xi + o_j * ti, tk)
+            gap[idx] = np.minimum(gap[idx], sd - body.radius - k.clearance)
     return gap
 
 
