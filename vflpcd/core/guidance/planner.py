@@ -462,15 +462,17 @@ class GuidancePlanner(PlannerBase):
         return Prepared(field=field, grid=grid, s0=s0, s_end=s_end, x_end=x_end, ends_path=ends_path,
                         statics=tuple(o for o in statics if o.id in terms))
 
-    def _integrate_and_time(self, field, prepared: Prepared, start, t0, v0, heading, steps, fair: bool = True):
+    def _integrate_and_time(self, field, prepared: Prepared, start, t0, v0, heading, steps, fair: bool = True,
+                            integration: Integration | None = None):
         """Eq. (xi_r), smoothing and speed planning: (integration, xy, s, kappa, v). Without ``fair``
         (a pass that only times the points) the path is not faired and its speed plan takes the
-        curvature at most kappa_max, as the faired path's would."""
+        curvature at most kappa_max, as the faired path's would. ``integration``: eq. (xi_r)'s result
+        for these step times when it is known already."""
         p = self.params
         length = prepared.s_end - prepared.s0
-        res: Integration = integrate(field, prepared.grid, start, prepared.x_end, p.beta, p.epsilon,
-                                     max_steps=int(4 * (length + 20.0) / p.beta), t0=t0,
-                                     speed=max(v0, 0.5 * self.v_desired), heading=heading, step_times=steps)
+        res: Integration = integration or integrate(
+            field, prepared.grid, start, prepared.x_end, p.beta, p.epsilon, max_steps=int(4 * (length + 20.0) / p.beta),
+            t0=t0, speed=max(v0, 0.5 * self.v_desired), heading=heading, step_times=steps)
         times = steps if steps is not None and len(steps) else None
         xy = self.safe_smooth(res.xy, field.statics + field.movers, t0, times, field.path)
         goal = prepared.ends_path and res.reached
@@ -503,10 +505,12 @@ class GuidancePlanner(PlannerBase):
         ``may_follow``), or made tight."""
         passes = MOVER_PASSES if movers else 0
         res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h, None, fair=passes == 0)
+        steps = None
         for k in range(passes):     # place moving obstacles at the last pass's times; fair the last two
-            res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h,
-                                                            step_times(s, v, t0, self.params.beta),
-                                                            fair=k >= passes - 2)
+            before, steps = steps, step_times(s, v, t0, self.params.beta)
+            same = before is not None and np.array_equal(steps, before)     # the same integration again
+            res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h, steps,
+                                                            fair=k >= passes - 2, integration=res if same else None)
         trajectory = timed_trajectory(xy, s, v, t0, self.dt)
         if field.movers and self.meets_mover(field.movers, trajectory, FOLLOW_SLACK):
             if not may_follow:
