@@ -113,8 +113,9 @@ class FieldGrid:
         return self.path.bounds
 
 
-def step_time(k: int, t0: float, beta: float, speed: float, step_times: np.ndarray | None) -> float:
-    """When the trajectory reaches step k: from step_times (K,) where known, else at ``speed``."""
+def step_time(k: int, t0: float, beta: float, speed: float, step_times) -> float:
+    """When the trajectory reaches step k: from step_times (K,) (an array or a list) where known,
+    else at ``speed``."""
     if step_times is not None and len(step_times):
         if k < len(step_times):
             return float(step_times[k])
@@ -166,6 +167,8 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
                float(term.implicit.velocity[0]), float(term.implicit.velocity[1]), term.implicit.stamp,
                term.implicit.reach ** 2) for term in field.movers]
     po, pd = field.path.progress_frame()  # progress = (xi - po) . pd
+    if step_times is not None:
+        step_times = step_times.tolist()      # plain floats, indexed every step
     xy = [(x, y)]
     inherited = 0
     reached = False

@@ -112,6 +112,8 @@ class GuidancePlanner3D(PlannerBase):
         obstacles = field.statics + field.movers
         gammas: list[float | None] = [None] * len(obstacles)
         po, pd = field.path.progress_frame()
+        if step_times is not None:
+            step_times = step_times.tolist()      # plain floats, indexed every step
         x, y, z = (float(v) for v in start)
         pts, prev, inherited = [(x, y, z)], None, 0
         # per obstacle, in plain floats: its centre at its stamp, velocity, stamp, squared reach
