@@ -2,7 +2,9 @@
 
 import numpy as np
 
-from sim.bench.tick import REST, scaling_scenario, timed_phases
+import time
+
+from sim.bench.tick import REST, paced, scaling_scenario, timed_phases
 from sim.runner import run_closed_loop
 from vflpcd.config.scenarios import load_scenario
 from vflpcd.controllers import make_controller
@@ -32,3 +34,19 @@ def test_the_scaling_road_has_its_posts_beside_the_lane_and_its_walkers_crossing
     assert len(posts) == 40 and len(walkers) == 8
     assert all(abs(o.center[1]) == 3.5 and 0.0 < o.center[0] < s.path.length for o in posts)
     assert all(o.velocity[1] * o.center[1] < 0.0 for o in walkers)         # each walks towards the lane
+
+
+def test_paced_ticks_are_timed_a_period_apart_and_back_to_back_ones_are_not(line_scenario):
+    """Both runs time every tick of the same closed loop; the paced one sleeps the rest of each
+    period, so it lasts at least the ticks' periods."""
+    s = line_scenario("paced_line", length=20.0)
+    t0 = time.perf_counter()
+    back = paced(s, "vflpc", 0.0)["modes"]
+    t1 = time.perf_counter()
+    out = paced(s, "vflpc", 0.02)
+    t2 = time.perf_counter()
+    runs = out["modes"]
+    assert runs["back to back"]["ticks"] == runs["paced"]["ticks"] == back["paced"]["ticks"] > 50
+    n = runs["paced"]["ticks"]
+    assert t2 - t1 >= 0.02 * (n - 1) > t1 - t0
+    assert all(0.0 < t < 0.02 for t in runs["paced"]["times"])
