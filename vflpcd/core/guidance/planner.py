@@ -25,7 +25,7 @@
    car) they are faired (``fairing.py``); then they are speed-planned. A timed trajectory that still
    enters a mover's repulsive region (a slow car ahead that the path cannot pass beside oncoming
    traffic) is speed-planned slower until it does not (``followed``), on its lane (the path planned
-   without the movers) where that is as fast: the robot follows in its lane.
+   without the movers) where any speed does: the robot follows in its lane.
 """
 
 from __future__ import annotations
@@ -293,12 +293,13 @@ class PlannerBase:
     def followed(self, movers, paths, t0: float, v0: float):
         """The first of ``paths`` ((xy, whether it ends at rest), best first) that, speed-planned
         slower (``FOLLOW_SPEEDS`` of v_desired, fastest first), has a trajectory from t0 at v0 that
-        meets no mover: a slow car ahead that the path cannot pass is followed. The planner tries
-        the lane (its path without the movers) before the field's path round them, so the robot
-        follows in its lane where it can do so as fast. (xy, s, kappa, v, trajectory), or None when
-        no such speed exists (a mover coming the other way)."""
-        for f in FOLLOW_SPEEDS:
-            for xy, at_rest in paths:
+        meets no mover: a slow car ahead that the path cannot pass is followed. The planner gives
+        the lane (its path without the movers) first, the field's path round them second: the
+        robot follows in its lane at whatever speed that takes, and crawls along a swerve only when
+        the lane is blocked at every speed (a mover coming the other way in it). (xy, s, kappa, v,
+        trajectory), or None when no such speed exists."""
+        for xy, at_rest in paths:
+            for f in FOLLOW_SPEEDS:
                 slower = self.timed(xy, f * self.v_desired, v0, t0, at_rest)
                 if not self.meets_mover(movers, slower[3]):
                     return (xy,) + slower
