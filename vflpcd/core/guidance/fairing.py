@@ -21,10 +21,11 @@ Each convex problem is solved by the two-phase active set of ``active_set_kernel
 Cholesky factorisation a round, compiled with numba where it is installed), started from the
 previous problem's final active set (the next outer round, the next l). Its second phase steps
 only as far as the half-planes let it, so it cannot cycle: jumping to each round's minimiser, as
-it did before, released and re-added the same half-planes until the ``ACTIVE_ROUNDS`` cap in 79 of
-200 solves on the suite's follow_slow_car; a solve that still reaches the cap (a stiff path among
-many movers' half-planes can need more rounds) returns its last feasible point. l is doubled from ``FAIR_MIN`` until the peak curvature is within kappa_max; if ``FAIR_MAX`` is reached the
-flattest clear path found is kept and the speed plan does what it can.
+it did before, released and re-added the same half-planes until the ``ACTIVE_ROUNDS`` cap on many
+solves of the suite's follow_slow_car; a solve that still reaches the cap (a stiff path among
+many movers' half-planes can need more rounds) returns its last feasible point. l is doubled from
+``FAIR_MIN`` until the peak curvature is within kappa_max; if ``FAIR_MAX`` is reached the flattest
+clear path found is kept and the speed plan does what it can.
 """
 
 from __future__ import annotations

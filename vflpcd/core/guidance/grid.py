@@ -2,9 +2,9 @@
 
     xi_{k+1} = xi_k + beta chi_c(xi_{k,grid}),  xi_{k,grid} = argmin_{xi_g in G} |xi_k - xi_g|
 
-A global grid holds chi_P^ (filled block by block where the integration goes); each static actual obstacle has a local grid over its reactive
-region's bounding box holding cup_Q_i and chi_R_i^ for both directions gamma_i = +1 and -1
-(all cells computed at once). A step multiplies and adds the terms of the obstacles whose grids
+A global grid holds chi_P^ (filled block by block where the integration goes); each static
+actual obstacle has a local grid over its reactive region's bounding box holding cup_Q_i and
+chi_R_i^ for both directions gamma_i = +1 and -1 (all cells computed at once). A step multiplies and adds the terms of the obstacles whose grids
 contain xi_k, adds the virtual and moving obstacles' terms evaluated at xi_k, normalises and -
 the paper's rule against deadlock at singular points - reuses the previous direction when
 |chi_c| < epsilon.
@@ -25,7 +25,7 @@ import numpy as np
 
 from vflpcd.core.guidance.field import GuidanceField
 from vflpcd.core.guidance.implicit import GuidanceError
-from vflpcd.core.guidance.primitives import bump, cup_at, guiding, unit
+from vflpcd.core.guidance.primitives import bump, cup_at, guiding, guiding_at, unit
 
 BACKWARDS = -0.3  # cos between the planned circulation and the path tangent that flips gamma_i at entry
 
@@ -39,10 +39,14 @@ class Grid:
     data: np.ndarray
 
     @staticmethod
-    def cells(bounds: tuple[float, float, float, float], h: float) -> tuple[np.ndarray, tuple[int, int]]:
+    def axes(bounds: tuple[float, float, float, float], h: float) -> tuple[np.ndarray, np.ndarray]:
+        """The cells' x and y coordinates over bounds (xmin, xmax, ymin, ymax) at spacing h."""
         xmin, xmax, ymin, ymax = bounds
-        xs = np.arange(xmin, xmax + 0.5 * h, h)
-        ys = np.arange(ymin, ymax + 0.5 * h, h)
+        return np.arange(xmin, xmax + 0.5 * h, h), np.arange(ymin, ymax + 0.5 * h, h)
+
+    @staticmethod
+    def cells(bounds: tuple[float, float, float, float], h: float) -> tuple[np.ndarray, tuple[int, int]]:
+        xs, ys = Grid.axes(bounds, h)
         X, Y = np.meshgrid(xs, ys, indexing="ij")
         return np.column_stack([X.ravel(), Y.ravel()]), (len(xs), len(ys))
 
@@ -59,19 +63,19 @@ BLOCK = 32  # cells on a side of the blocks in which the path's grid is filled
 @dataclass(frozen=True)
 class PathGrid(Grid):
     """The global chi_P^ grid (2 channels), filled a block of ``BLOCK`` x ``BLOCK`` cells at a time
-    when the integration first reaches the block (``cell``): the corridor is wide (8 m beside the
-    path, the obstacles' reactive regions) and a plan visits a small part of it. A block's cells
-    are those of the whole grid, evaluated by the same vectorised ``unit_at``."""
+    when the integration first reaches the block (``fill``, called by ``integrate``): the corridor
+    is wide (8 m beside the path, the obstacles' reactive regions) and a plan visits a small part of
+    it. A block's cells are those of the whole grid (``xs``, ``ys``), evaluated by the same
+    vectorised ``unit_at``; ``filled[bi][bj]``: whether block (bi, bj) is."""
 
-    xs: np.ndarray = None
-    ys: np.ndarray = None
-    unit_at: Callable[[np.ndarray], np.ndarray] = None
-    filled: list = None
+    xs: np.ndarray
+    ys: np.ndarray
+    unit_at: Callable[[np.ndarray], np.ndarray]
+    filled: list
 
     @classmethod
     def lazy(cls, bounds: tuple[float, float, float, float], h: float, unit_at) -> "PathGrid":
-        xmin, xmax, ymin, ymax = bounds
-        xs, ys = np.arange(xmin, xmax + 0.5 * h, h), np.arange(ymin, ymax + 0.5 * h, h)
+        xs, ys = Grid.axes(bounds, h)
         filled = [[False] * -(-len(ys) // BLOCK) for _ in range(-(-len(xs) // BLOCK))]
         return cls(np.array([xs[0], ys[0]]), h, np.empty((len(xs), len(ys), 2)), xs, ys, unit_at, filled)
 
@@ -204,8 +208,7 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
                     continue
                 phi, gx, gy = o.value_grad_at(x, y, t)
                 cup = cup_at(phi, o.c, field.l1, field.l2)
-                chx = -term.gamma * gy - field.k_r * phi * gx      # guiding(): gamma E grad - k_r phi grad
-                chy = term.gamma * gx - field.k_r * phi * gy
+                chx, chy = guiding_at(term.gamma, field.k_r, phi, gx, gy)
                 chn = max(math.hypot(chx, chy), 1e-300)
                 P *= cup
                 Vx, Vy = Vx + (1.0 - cup) * chx / chn, Vy + (1.0 - cup) * chy / chn
@@ -228,8 +231,7 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
             phi = r / radius - 1.0
             s_i = 0.0 if phi <= cv else math.exp(k_c / (cv - phi))
             gx, gy = dx / (r * radius), dy / (r * radius)
-            kx = -term.gamma * gy - k_r * (phi - cv) * gx  # gamma E grad - k_r (varphi - c) grad
-            ky = term.gamma * gx - k_r * (phi - cv) * gy
+            kx, ky = guiding_at(term.gamma, k_r, phi - cv, gx, gy)  # gamma E grad - k_r (varphi - c) grad
             kn = (kx * kx + ky * ky) ** 0.5
             P *= s_i
             Vx, Vy = Vx + (1.0 - s_i) * kx / kn, Vy + (1.0 - s_i) * ky / kn

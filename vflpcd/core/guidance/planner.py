@@ -233,8 +233,7 @@ class PlannerBase:
         keepouts = [Keepout(o, self.tight_clearance(o)) for o in prepared.statics] + moving
         times = field_times = _arrivals(s, v, t0)
         if moving:      # the field's timed path may pass a mover closer than the clearance: no closer than it
-            timed = timed_trajectory(xy, s, v, t0, self.dt)
-            floor = min(0.0, float(np.min(disc_gaps(timed.pos, self.body, moving, timed.t)))) - CLEAR_TOLERANCE
+            floor = min(0.0, self.least_gap(timed_trajectory(xy, s, v, t0, self.dt), moving)) - CLEAR_TOLERANCE
         for _ in range(MOVER_PASSES if moving else 1):
             out = tighten_path(xy, times, partial(feet_on_polyline, xy=stretch), self.kappa_max, self.body, keepouts,
                                p.tight_length, heading, goal, field_times, self.qp_loop)
@@ -243,13 +242,17 @@ class PlannerBase:
             s_t, kappa, v_t = plan_speed(out[0], self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
                                          v_end=0.0 if goal else None)
             trajectory = timed_trajectory(out[0], s_t, v_t, t0, self.dt)
-            if not moving or np.min(disc_gaps(trajectory.pos, self.body, moving, trajectory.t)) >= floor:
+            if not moving or self.least_gap(trajectory, moving) >= floor:
                 return out[0], s_t, kappa, v_t
             # the shorter path is reached earlier: each field point is taken at the time the tight
             # path passes it (its nearest tight point's), and the movers there, next round
             nearest = np.argmin(((xy[:, None, :] - out[0][None, :, :]) ** 2).sum(axis=2), axis=1)
             times = _arrivals(s_t, v_t, t0)[nearest]
         return None
+
+    def least_gap(self, trajectory: Trajectory, keepouts: Sequence[Keepout]) -> float:
+        """The least gap (``disc_gaps``) of the body along a timed trajectory to the keepouts, m."""
+        return float(np.min(disc_gaps(trajectory.pos, self.body, keepouts, trajectory.t)))
 
     @staticmethod
     def _values(o: ObstacleImplicit, xy: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -550,7 +553,7 @@ class GuidancePlanner(PlannerBase):
         entry = _crossing_entry(plan.xy, plan.s, [term.implicit for term in crossers], t0)
         near = [Keepout(o, self.tight_clearance(o)) for o in others]
         if near:                # slowed, it comes no closer to the others than the plan does (or their clearance)
-            floor = min(0.0, float(np.min(disc_gaps(plan.trajectory.pos, self.body, near, plan.trajectory.t))))
+            floor = min(0.0, self.least_gap(plan.trajectory, near)) - CLEAR_TOLERANCE
         p = self.params
         for f in (1.0,) + FOLLOW_SPEEDS:
             cap = np.where(plan.s < entry, f * self.v_desired, self.v_desired)
@@ -559,7 +562,7 @@ class GuidancePlanner(PlannerBase):
             trajectory = timed_trajectory(plan.xy, s, v, t0, self.dt)
             if self.meets_mover(crossers, trajectory):
                 continue
-            if near and np.min(disc_gaps(trajectory.pos, self.body, near, trajectory.t)) < floor - CLEAR_TOLERANCE:
+            if near and self.least_gap(trajectory, near) < floor:
                 continue
             return replace(plan, trajectory=trajectory, s=s, kappa=kappa, v=v, field=field)
         return None

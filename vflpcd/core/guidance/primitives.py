@@ -45,6 +45,11 @@ def cup_at(varphi: float, c: float, l1: float, l2: float) -> float:
     return 0.5 * (1.0 + math.tanh(0.5 * (l1 / (c - varphi) - l2 / varphi)))
 
 
+def guiding_at(gamma: float, k: float, phi: float, gx: float, gy: float) -> tuple[float, float]:
+    """``guiding`` at one point in plain floats: gamma E grad phi - k phi grad phi."""
+    return -gamma * gy - k * phi * gx, gamma * gx - k * phi * gy
+
+
 def guiding(gamma: float, k: float, phi: np.ndarray, grad: np.ndarray) -> np.ndarray:
     """gamma E grad phi - k phi grad phi for phi (N,), grad (N, 2): the chi_P / chi_R_i form."""
     return gamma * (grad @ E.T) - k * phi[:, None] * grad

@@ -97,6 +97,14 @@ def _sd_grad(k: Keepout, pts: np.ndarray, times: np.ndarray) -> tuple[np.ndarray
     return sd[0], grad
 
 
+def _within(k: Keepout, body: Body, x: np.ndarray, times: np.ndarray, beyond: float) -> np.ndarray:
+    """The indices of the points of x (K, d), reached at times (K,), at which some disc of the body
+    may come within ``beyond`` m of k's clearance (by the shape's bounding circle); the signed
+    distances of the rest are never needed."""
+    far = float(np.max(np.abs(body.offsets))) + body.radius + k.clearance + beyond + k.obstacle.shape.bounding_radius()
+    return np.flatnonzero(np.einsum("ij,ij->i", d := x - k.centres(times), d) <= far * far)
+
+
 def disc_gaps(x: np.ndarray, body: Body, keepouts: Sequence[Keepout], times: np.ndarray | None = None) -> np.ndarray:
     """Per point of x (K, d), reached at ``times`` (K,) (only moving keepouts need them), the least
     sd(disc centre) - radius - clearance over the discs and keepouts (K,): negative where a disc is
@@ -105,10 +113,8 @@ def disc_gaps(x: np.ndarray, body: Body, keepouts: Sequence[Keepout], times: np.
     t = unit_differences(x)
     times = np.zeros(len(x)) if times is None else times
     gap = np.full(len(x), np.inf)
-    body_reach = float(np.max(np.abs(body.offsets))) + body.radius
     for k in keepouts:
-        far = body_reach + k.clearance + k.obstacle.shape.bounding_radius()
-        idx = np.flatnonzero(np.einsum("ij,ij->i", d := x - k.centres(times), d) <= far * far)
+        idx = _within(k, body, x, times, 0.0)
         if idx.size == 0:
             continue
         xi, ti, tk = x[idx], t[idx], times[idx]
@@ -128,12 +134,8 @@ def body_half_planes(x: np.ndarray, times: np.ndarray, body: Body, keepouts: Seq
     b = np.full(len(x), -np.inf)
     need = np.full(len(x), -np.inf)          # b_k - n_k' x_k: how far the point must move along n_k
     slack = np.broadcast_to(np.asarray(slack, float), (len(x),))
-    body_reach = float(np.max(np.abs(body.offsets))) + body.radius
     for k in keepouts:
-        # only the points whose discs may come within REACH of the clearance (by the shape's
-        # bounding circle) can get a half-plane from k: the signed distances of the rest are skipped
-        far = body_reach + k.clearance + REACH + k.obstacle.shape.bounding_radius()
-        idx = np.flatnonzero(np.linalg.norm(x - k.centres(times), axis=1) < far)
+        idx = _within(k, body, x, times, REACH)     # only these points can get a half-plane from k
         if idx.size == 0:
             continue
         xi, ti, si = x[idx], t[idx], slack[idx]

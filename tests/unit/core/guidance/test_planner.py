@@ -11,7 +11,7 @@ from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.config.params import guidance_params
 from vflpcd.core.guidance.planner import FOLLOW_SLACK, GuidancePlanner
 from vflpcd.core.guidance.speed import plan_speed, smooth_path
-from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE
+from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE, Keepout
 from vflpcd.core.guidance.trajectory import timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
@@ -372,3 +372,23 @@ def test_a_slow_car_that_cannot_be_passed_is_followed_in_the_lane(params):
     plan = planner.plan(planner.prepare(0.0, []), np.array([0.0, 0.0]), 0.0, 7.0, movers, heading=0.0)
     assert np.max(np.abs(plan.xy[:, 1])) < 0.05
     assert plan.v.max() < 7.0 and not planner.meets_mover(plan.field.movers, plan.trajectory)
+
+
+def test_a_crossing_walker_is_yielded_to_while_a_slow_car_ahead_is_passed_tightly(params):
+    """A slow car ahead that the plan passes (by the tight path, closer than the car's repulsive
+    region) and a walker crossing farther on: the yielding plan exists (it used to be refused
+    because the tight pass enters the car's region by design), meets no crossing mover and keeps
+    the tight clearance from the car."""
+    path = ReferencePath.line([0.0, 0.0], [140.0, 0.0])
+    planner = GuidancePlanner(path, params, 7.0, 3.0, 1.25, 0.05, kappa_limit=0.17)
+    slow = ObstacleState(id="slow", shape=Box(4.5, 1.9), center=np.array([20.0, 0.0]), yaw=0.0,
+                         velocity=np.array([2.0, 0.0]), stamp=0.0)
+    walker = ObstacleState(id="walker", shape=Circle(0.4), center=np.array([70.0, -7.0]), yaw=0.0,
+                           velocity=np.array([0.0, 1.4]), stamp=0.0)
+    prepared = planner.prepare(0.0, [])
+    field = replace(prepared.field, movers=[planner.actual_term(planner.implicit(o), 0.0) for o in (slow, walker)])
+    plan = planner.yielding(prepared, field, np.zeros(2), 0.0, 7.0, np.array([1.0, 0.0]), [slow, walker], [walker])
+    assert plan is not None
+    assert np.max(np.abs(plan.xy[:, 1])) > 1.0                     # it passes the slow car
+    assert not planner.meets_mover([field.movers[1]], plan.trajectory)
+    assert planner.least_gap(plan.trajectory, [Keepout(slow, planner.tight_clearance(slow))]) > -CLEAR_TOLERANCE
