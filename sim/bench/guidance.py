@@ -57,7 +57,7 @@ def run_guidance(scenario: Scenario, repeat: int, safe_distance: float,
     """The guidance with the scenario's parameters (``virtual`` overrides their virtual-obstacle mode)."""
     params = scenario.guidance if virtual is None else replace(scenario.guidance, virtual=virtual)
     planner = GuidancePlanner(scenario.path, params, scenario.v_desired, scenario.a_lat_max,
-                              scenario.footprint.radius, scenario.control_period, qp_loop=active_set_loop())
+                              scenario.footprint.radius, scenario.control_period, qp_loop=active_set_loop)
     obstacles = ObstacleWorld(scenario.obstacles).snapshot(0.0)
     t_pre = []
     for _ in range(3):

@@ -71,6 +71,8 @@ def _run_refit(job):
 def _warm_up() -> bool:
     import vflpcd.core.jobs  # noqa: F401  (imports the planning code once, before the first job)
 
+    if _PLANNER is not None:
+        _PLANNER.warm()      # and loads its compiled loops
     return True
 
 
@@ -114,7 +116,8 @@ class Workers:
         return ex
 
     def start(self, timeout_s: float = 60.0) -> None:
-        """Start both workers and wait until they have imported the planning code."""
+        """Start both workers and wait until they have imported the planning code and loaded the
+        planner's compiled loops (``PlannerBase.warm``)."""
         futures = [self._executor(k).submit(_warm_up) for k in self.KINDS]
         for f in futures:
             f.result(timeout=timeout_s)

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from functools import partial
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -105,8 +105,12 @@ class PlannerBase:
 
     def __init__(self, path: ReferencePath, params: GuidanceParams, v_desired: float, a_lat_max: float,
                  body_radius: float, control_period: float, kappa_limit: float = np.inf,
-                 body: Body | None = None, qp_loop=None) -> None:
-        """``qp_loop``: the fairing's active set compiled (``fairing.solve_active_set``'s ``loop``)."""
+                 body: Body | None = None, qp_loop: Callable[[], Callable | None] | None = None) -> None:
+        """``qp_loop``: a function that returns the fairing's active set compiled (``fairing.solve_active_set``'s
+        ``loop``; ``vflpcd.controllers.loops.active_set_loop``). The planner is sent to the worker
+        processes, and a function travels there by name and loads the compiled loop from numba's
+        cache (``warm``); a compiled loop sent itself arrives without its cache and compiles again
+        at the first replan (about 7 s on this project's machines)."""
         if path.dim != self.dim:
             raise GuidanceError(f"{type(self).__name__} needs a {self.dim}-D path, got a {path.dim}-D one")
         for name, value in (("v_desired", v_desired), ("a_lat_max", a_lat_max), ("body_radius", body_radius),
@@ -122,6 +126,15 @@ class PlannerBase:
         self.kappa_limit = float(kappa_limit)
         self.kappa_max = params.curvature_use * kappa_limit
         self.qp_loop = qp_loop
+
+    def warm(self) -> None:
+        """Load what a replan runs (the compiled active set), so that a worker's first replan does
+        not wait for it."""
+        self._qp()
+
+    def _qp(self):
+        """The compiled active set, or None (``qp_loop``)."""
+        return None if self.qp_loop is None else self.qp_loop()
 
     def drivable(self, plan: "GuidancePlan") -> bool:
         """Whether the plan keeps the robot's curvature limit (``kappa_limit``) and its lateral
@@ -206,7 +219,7 @@ class PlannerBase:
         regions = [Region(partial(_value_grad_at_times, term.implicit), term.implicit.c,
                           partial(_within_reach, term.implicit)) for term in terms]
         return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, regions, heading, pin_end,
-                         self.qp_loop)
+                         self._qp())
 
     def tight_clearance(self, o: ObstacleState) -> float:
         """The clearance the tight path keeps between the body's discs and o's shape: ``tight_margin``
@@ -236,7 +249,7 @@ class PlannerBase:
             floor = min(0.0, self.least_gap(timed_trajectory(xy, s, v, t0, self.dt), moving)) - CLEAR_TOLERANCE
         for _ in range(MOVER_PASSES if moving else 1):
             out = tighten_path(xy, times, partial(feet_on_polyline, xy=stretch), self.kappa_max, self.body, keepouts,
-                               p.tight_length, heading, goal, field_times, self.qp_loop)
+                               p.tight_length, heading, goal, field_times, self._qp())
             if out is None:
                 return None
             s_t, kappa, v_t = plan_speed(out[0], self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
