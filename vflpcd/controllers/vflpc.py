@@ -90,6 +90,7 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
     planner = planner_cls(scenario.path, scenario.guidance, scenario.v_desired, scenario.a_lat_max,
                           scenario.footprint.radius, model.dt, kappa_limit=curvature_limit(scenario),
                           body=planner_body(scenario.footprint), qp_loop=active_set_loop)
+    planner.warm()          # the compiled active set loaded now, not in the first tick's plan
     if compensation and not np.isclose(scenario.control_period, model.dt):
         raise ValueError(f"GP compensation learns one-model-step transitions: scenario {scenario.name!r} runs "
                          f"every {scenario.control_period} s, the model steps {model.dt} s")
