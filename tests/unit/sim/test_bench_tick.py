@@ -49,4 +49,6 @@ def test_paced_ticks_are_timed_a_period_apart_and_back_to_back_ones_are_not(line
     assert runs["back to back"]["ticks"] == runs["paced"]["ticks"] == back["paced"]["ticks"] > 50
     n = runs["paced"]["ticks"]
     assert t2 - t1 >= 0.02 * (n - 1) > t1 - t0
-    assert all(0.0 < t < 0.02 for t in runs["paced"]["times"])
+    times = np.array(runs["paced"]["times"])
+    assert np.all(times > 0.0)
+    assert np.median(times) < 0.5 * 0.02           # the tick alone: a timed sleep would reach the period
