@@ -5,29 +5,33 @@ u sub-diagonals, given in LAPACK's lower band layout ``low[i - j, j] = M[i, j]``
 right-hand side f (the minimiser of the free problem solves M x = f), subject to one half-plane
 per point, n_k' x_k >= b_k, for the points with ``constrained[k]``. An active half-plane is held
 by a stiff spring: ``penalty`` (n_k n_k') is added to M's block k and ``penalty`` b_k n_k to f_k,
-so each round is one banded Cholesky factorisation and two triangular solves, and the spring's
+so each round is one banded Cholesky factorisation and triangular solves, and the spring's
 stretch gap_k = n_k' x_k - b_k < 0 is the half-plane's multiplier over ``penalty``. A round
 factorises again only from the first point whose spring changed since the last: the columns before
 it, their factor and the forward solve there are the same numbers.
 
-Two phases (Nocedal and Wright, Numerical Optimization, algorithm 16.3, for the second):
+The dual active set of Goldfarb and Idnani (Math. Programming 27, 1983), which starts from a
+minimiser and keeps every active multiplier non-negative (``active`` given: its half-planes held
+from outside, gap_k > ``release``, are released first):
 
-1. from ``active``, every half-plane that the round's minimiser violates by more than
-   ``violation`` is made active, until a minimiser violates none (the active set only grows: at
-   most K rounds);
-2. from that feasible point x, each round solves for the minimiser x* of the active set and steps
-   from x towards it as far as the inactive half-planes let it (the first that x* would violate
-   blocks and is made active); when x* is reached, the active half-plane that the spring holds
-   from outside the most (gap_k > ``release``: a negative multiplier) is released, and when none
-   is, x* is the minimiser of the problem. Every step keeps the half-planes and does not raise
-   the cost, so the release does not cycle as jumping to x* would (a release lets a point
-   inwards, the next solve adds the half-planes that it crosses, and those push back).
+- the most violated inactive half-plane p (gap_p < -``violation``) is pushed towards by a force
+  t n_p on point p; the points move along z = M_A^{-1} e_p n_p (M_A: M with the active springs);
+- the force grows until p's half-plane holds (t2 = -gap_p / n_p' z_p: p is made active) or an
+  active multiplier reaches zero first (t1 = -gap_k / n_k' z_k: k is released, the force is kept
+  and p is pushed on with the new M_A);
+- when no half-plane is violated, x is the minimiser.
 
-Returns the rounds taken (a positive number) when it converged, 0 when ``rounds`` ran out (x is
-then the last feasible point, or the last minimiser when phase 1 never found one), -1 when a
-factorisation met a non-positive pivot. ``active`` (K,) and ``x`` (N,) are written in place.
-A loop compiler (numba's ``njit``: ``vflpcd.controllers.loops`` compiles it, outside core) turns
-it into machine code; the fairing's numpy path runs the same two phases with LAPACK's ``dpbsv``.
+Each step raises the dual objective, so no active set repeats: the rounds are about the number of
+half-planes that end active, where a primal active set, which needs a feasible start and moves
+one contact point a round, took 50-190 rounds on the fairings of the suite's follow_slow_car.
+Its iterates cut into the half-planes until the end, so when ``rounds`` run out, every violated
+half-plane is made active until a minimiser violates none (at most K more rounds): the point
+returned keeps the half-planes, though it is not the minimiser.
+
+Returns the rounds taken (a positive number) when it converged, 0 when ``rounds`` ran out,
+-1 when a factorisation met a non-positive pivot. ``active`` (K,) and ``x`` (N,) are written in
+place. A loop compiler (numba's ``njit``: ``vflpcd.controllers.loops`` compiles it, outside core)
+turns it into machine code; the fairing's numpy path runs the same steps with LAPACK's ``dpbsv``.
 """
 
 from __future__ import annotations
@@ -44,11 +48,15 @@ def solve_loop(low0, f0, n, b, constrained, active, x, rounds, penalty, violatio
     u = low0.shape[0] - 1
     low = np.empty_like(low0)
     y = np.empty(N)
-    xs = np.empty(N)
+    xa = np.empty(N)                           # the minimiser of the active springs alone
+    z = np.empty(N)
     factored = np.zeros(K, dtype=np.bool_)     # the active set that low and y were computed for
-    k0 = 0                                     # the first point whose spring changed since (all at first)
-    feasible = False
-    for r in range(rounds):
+    p, force = -1, 0.0                         # the half-plane pushed towards, and the push
+    dual = True                                # False: restoring (rounds ran out)
+    for r in range(rounds + K + 1):
+        if r == rounds:
+            dual = False
+        k0 = 0
         if r > 0:
             k0 = K
             for k in range(K):
@@ -84,55 +92,86 @@ def solve_loop(low0, f0, n, b, constrained, active, x, rounds, penalty, violatio
             y[i] = s / low[0, i]
         for k in range(K):
             factored[k] = active[k]
-        xs[:] = y
-        for i in range(N - 1, -1, -1):   # L' x* = y
-            s = xs[i]
+        xa[:] = y
+        for i in range(N - 1, -1, -1):   # L' xa = y
+            s = xa[i]
             for m in range(1, min(u, N - 1 - i) + 1):
-                s -= low[m, i] * xs[i + m]
-            xs[i] = s / low[0, i]
-        if not feasible:             # phase 1: add every violated half-plane
+                s -= low[m, i] * xa[i + m]
+            xa[i] = s / low[0, i]
+        if not dual:                 # restoring: every violated half-plane made active
             added = False
             for k in range(K):
                 if constrained[k] and not active[k]:
                     g = -b[k]
                     for j in range(d):
-                        g += n[k, j] * xs[k * d + j]
+                        g += n[k, j] * xa[k * d + j]
                     if g < -violation:
                         active[k] = True
                         added = True
-            x[:] = xs
-            if added:
+            x[:] = xa
+            if not added:
+                return 0
+            continue
+        if p < 0:
+            released = False         # a warm start's half-planes held from outside
+            for k in range(K):
+                if active[k]:
+                    g = -b[k]
+                    for j in range(d):
+                        g += n[k, j] * xa[k * d + j]
+                    if g > release:
+                        active[k] = False
+                        released = True
+            if released:
                 continue
-            feasible = True
-        else:                        # phase 2: step towards x* until a half-plane blocks
-            step, block = 1.0, -1
+            worst = -violation
             for k in range(K):
                 if constrained[k] and not active[k]:
-                    after, before = -b[k], -b[k]
+                    g = -b[k]
                     for j in range(d):
-                        after += n[k, j] * xs[k * d + j]
-                        before += n[k, j] * x[k * d + j]
-                    if after < -violation:
-                        before = max(before, 0.0)
-                        reach = before / (before - after)
-                        if reach < step:
-                            step, block = reach, k
-            if block >= 0:
-                for i in range(N):
-                    x[i] += step * (xs[i] - x[i])
-                active[block] = True
-                continue
-            x[:] = xs
-        held, drop = release, -1     # x = x*: release the half-plane held from outside the most
+                        g += n[k, j] * xa[k * d + j]
+                    if g < worst:
+                        worst, p = g, k
+            if p < 0:
+                x[:] = xa
+                return r + 1
+            force = 0.0
+        z[:] = 0.0                   # z = M_A^-1 e_p n_p: L w = e_p n_p, then L' z = w
+        for i in range(p * d, N):
+            s = n[p, i - p * d] if i < (p + 1) * d else 0.0
+            for m in range(1, min(u, i - p * d) + 1):
+                s -= low[m, i - m] * z[i - m]
+            z[i] = s / low[0, i]
+        for i in range(N - 1, -1, -1):
+            s = z[i]
+            for m in range(1, min(u, N - 1 - i) + 1):
+                s -= low[m, i] * z[i + m]
+            z[i] = s / low[0, i]
+        for i in range(N):
+            x[i] = xa[i] + force * z[i]
+        gap_p, reach_p = -b[p], 0.0
+        for j in range(d):
+            gap_p += n[p, j] * x[p * d + j]
+            reach_p += n[p, j] * z[p * d + j]
+        full = -gap_p / reach_p if reach_p > 0.0 else math.inf
+        part, drop = math.inf, -1    # the first active multiplier to reach zero
         for k in range(K):
             if active[k]:
-                g = -b[k]
+                g, a = -b[k], 0.0
                 for j in range(d):
-                    g += n[k, j] * xs[k * d + j]
-                if g > held:
-                    held, drop = g, k
-        if drop < 0:
-            return r + 1
-        active[drop] = False
+                    g += n[k, j] * x[k * d + j]
+                    a += n[k, j] * z[k * d + j]
+                if a > 0.0:
+                    t = max(-g / a, 0.0)
+                    if t < part:
+                        part, drop = t, k
+        if full <= part:
+            if not math.isfinite(full):
+                dual = False         # nothing moves point p out: restore
+                continue
+            active[p] = True
+            p = -1
+        else:
+            force += part
+            active[drop] = False
     return 0
-

@@ -17,13 +17,12 @@ the field at a robot off the path points towards it, and a reference that starts
 asks the car for a step in heading. Q_i is convex, so it is convexified by a supporting
 half-plane per point: at the point where the gradient line through x_k meets the level
 varphi_i = CLEAR_LEVEL c_i just outside Q_i (a few outer rounds re-take them at the new points).
-Each convex problem is solved by the two-phase active set of ``active_set_kernel`` (one banded
-Cholesky factorisation a round, compiled with numba where it is installed), started from the
-previous problem's final active set (the next outer round, the next l). Its second phase steps
-only as far as the half-planes let it, so it cannot cycle: jumping to each round's minimiser, as
-it did before, released and re-added the same half-planes until the ``ACTIVE_ROUNDS`` cap on many
-solves of the suite's follow_slow_car; a solve that still reaches the cap (a stiff path among
-many movers' half-planes can need more rounds) returns its last feasible point. l is doubled from
+Each convex problem is solved by the dual active set of ``active_set_kernel`` (a banded Cholesky
+factorisation a round, compiled with numba where it is installed), started from the previous
+problem's final active set (the next outer round, the next l): its rounds are about the number of
+half-planes that end active (4-39 on the suite's follow_slow_car, where a primal active set took
+50-190); a solve that reaches the ``ACTIVE_ROUNDS`` cap returns a point that keeps every
+half-plane (not the minimiser). l is doubled from
 ``FAIR_MIN`` until the peak curvature is within kappa_max; if ``FAIR_MAX`` is reached the flattest
 clear path found is kept and the speed plan does what it can.
 """
@@ -35,7 +34,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 from scipy.linalg import LinAlgError
-from scipy.linalg.lapack import dpbsv
+from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from vflpcd.core.guidance.speed import menger_curvature
 
@@ -121,14 +120,21 @@ def _hessian_bands(K: int, d: int, eps: float) -> np.ndarray:
     return ab
 
 
-def _banded_solve(ab: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """The symmetric positive definite banded system (lower layout of ``_hessian_bands``) solved
-    by LAPACK's dpbsv, the routine ``scipy.linalg.solveh_banded`` calls, without its argument
-    checks (about 40 us of a 55 us call); ab and f are consumed."""
-    _, x, info = dpbsv(ab, f, lower=1, overwrite_ab=1, overwrite_b=1)
+def _banded_factor(ab: np.ndarray) -> np.ndarray:
+    """The Cholesky factor of the symmetric positive definite banded matrix ab (lower layout of
+    ``_hessian_bands``) by LAPACK's dpbtrf (ab consumed), for ``_banded_solve``."""
+    c, info = dpbtrf(ab, lower=1, overwrite_ab=1)
     if info != 0:
-        raise LinAlgError(f"fairing system not positive definite (dpbsv info {info})")
-    return x
+        raise LinAlgError(f"fairing system not positive definite (dpbtrf info {info})")
+    return c
+
+
+def _banded_solve(c: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """M x = f (N,) by LAPACK's dpbtrs, M's factor c from ``_banded_factor``."""
+    x, info = dpbtrs(c, f[:, None], lower=1)
+    if info != 0:
+        raise LinAlgError(f"fairing solve failed (dpbtrs info {info})")
+    return x[:, 0]
 
 
 def bending(g: np.ndarray) -> np.ndarray:
@@ -141,18 +147,18 @@ def bending(g: np.ndarray) -> np.ndarray:
     return out
 
 
-def solve_active_set(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, x0: np.ndarray,
-                     pin_end: bool, active0: np.ndarray | None = None,
+def solve_active_set(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, pin_end: bool,
+                     active0: np.ndarray | None = None,
                      shape: np.ndarray | None = None, pins: np.ndarray | None = None,
                      loop=None) -> tuple[np.ndarray, np.ndarray]:
     """min eps |x - r|^2 + |D2 (x - g)|^2 (g = ``shape``, default 0: the bending of x itself; a path g
     makes it the bending of x's offset from g) subject to n_k' x_k >= b_k, with the first two points
     (and with pin_end the last) pinned (where ``pins`` (K, d) has them, default r) by a stiff spring
-    (PENALTY), by the two-phase active set of ``active_set_kernel`` (x is then the minimiser to
-    ~1e-7 m). Stopped by ``ACTIVE_ROUNDS``, it returns its last iterate that violated no half-plane.
-    The active set starts from the half-planes x0 violates and ``active0`` (the previous solve's);
-    returns (x, its active set). ``loop``: ``active_set_kernel.solve_loop`` compiled
-    (``vflpcd.controllers.loops``); without it the same phases run on numpy and LAPACK."""
+    (PENALTY), by the dual active set of ``active_set_kernel`` (x is then the minimiser to
+    ~1e-7 m). Stopped by ``ACTIVE_ROUNDS``, it returns a point that violates no half-plane.
+    The active set starts from ``active0`` (the previous solve's); returns (x, its active set).
+    ``loop``: ``active_set_kernel.solve_loop`` compiled (``vflpcd.controllers.loops``); without it
+    the same steps run on numpy and LAPACK."""
     K, d = r.shape
     base = _hessian_bands(K, d, eps)
     f0 = eps * r.ravel()
@@ -164,10 +170,8 @@ def solve_active_set(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, x0
     f0[cols] += PENALTY * (r if pins is None else pins)[pinned].ravel()
     constrained = np.isfinite(b)
     constrained[pinned] = False
-    active = constrained & (np.einsum("ij,ij->i", n, x0) < b)
-    if active0 is not None:
-        active |= constrained & active0
-    x = np.array(x0, dtype=float).ravel()
+    active = np.zeros(K, dtype=bool) if active0 is None else constrained & active0
+    x = np.zeros(K * d)
     n = np.ascontiguousarray(n, dtype=float)
     if loop is not None:
         done = loop(base, f0, n, np.where(constrained, b, 0.0), constrained, active, x, ACTIVE_ROUNDS, PENALTY,
@@ -181,39 +185,59 @@ def solve_active_set(r: np.ndarray, eps: float, n: np.ndarray, b: np.ndarray, x0
 
 def _solve_numpy(low0: np.ndarray, f0: np.ndarray, n: np.ndarray, b: np.ndarray, constrained: np.ndarray,
                  active: np.ndarray, x: np.ndarray) -> int:
-    """``active_set_kernel.solve_loop``'s two phases on numpy, each round's system by ``dpbsv``;
+    """``active_set_kernel.solve_loop``'s steps on numpy, each round's factor by LAPACK;
     active and x (N,) written in place; the rounds taken (0: stopped by ``ACTIVE_ROUNDS``)."""
     K, d = n.shape
     pairs = [(j1, j2) for j1 in range(d) for j2 in range(j1, d)]
-    feasible = False
-    for r in range(ACTIVE_ROUNDS):
+    bc = np.where(constrained, b, 0.0)
+    p, force, dual = -1, 0.0, True
+    for r in range(ACTIVE_ROUNDS + K + 1):
+        dual = dual and r < ACTIVE_ROUNDS
         low, f = low0.copy(), f0.copy()
         k = np.nonzero(active)[0]
         for j1, j2 in pairs:
             low[j2 - j1, k * d + j1] += PENALTY * n[k, j1] * n[k, j2]
         f.reshape(K, d)[k] += PENALTY * b[k, None] * n[k]
-        xs = _banded_solve(low, f)
-        after = np.where(constrained, np.einsum("ij,ij->i", n, xs.reshape(K, d)) - b, 0.0)
-        open_ = constrained & ~active & (after < -VIOLATION)
-        if not feasible:                 # phase 1: add every violated half-plane
-            x[:] = xs
-            if np.any(open_):
-                active |= open_
-                continue
-            feasible = True
-        elif np.any(open_):              # phase 2: step towards x* until a half-plane blocks
-            before = np.maximum(np.einsum("ij,ij->i", n, x.reshape(K, d)) - np.where(constrained, b, 0.0), 0.0)
-            reach = np.where(open_, before / np.where(open_, before - after, 1.0), np.inf)
-            block = int(np.argmin(reach))
-            x += reach[block] * (xs - x)
-            active[block] = True
+        c = _banded_factor(low)
+        xa = _banded_solve(c, f)
+        gaps = np.where(constrained, np.einsum("ij,ij->i", n, xa.reshape(K, d)) - bc, 0.0)
+        if not dual:                     # restoring: every violated half-plane made active
+            x[:] = xa
+            open_ = constrained & ~active & (gaps < -VIOLATION)
+            if not np.any(open_):
+                return 0
+            active |= open_
             continue
+        if p < 0:
+            held = active & (gaps > RELEASE)
+            if np.any(held):             # a warm start's half-planes held from outside
+                active &= ~held
+                continue
+            open_ = np.where(constrained & ~active, gaps, np.inf)
+            p = int(np.argmin(open_))
+            if not open_[p] < -VIOLATION:
+                p = -1
+                x[:] = xa
+                return r + 1
+            force = 0.0
+        e = np.zeros(K * d)
+        e[p * d:(p + 1) * d] = n[p]
+        z = _banded_solve(c, e).reshape(K, d)
+        x[:] = xa + force * z.ravel()
+        g = np.einsum("ij,ij->i", n, x.reshape(K, d)) - bc
+        a = np.einsum("ij,ij->i", n, z)
+        full = -g[p] / a[p] if a[p] > 0.0 else np.inf
+        t = np.where(active & (a > 0.0), np.maximum(-g / np.where(a > 0.0, a, 1.0), 0.0), np.inf)
+        drop = int(np.argmin(t))
+        if full <= t[drop]:
+            if not np.isfinite(full):
+                dual = False             # nothing moves point p out: restore
+                continue
+            active[p] = True
+            p = -1
         else:
-            x[:] = xs
-        held = np.where(active & (after > RELEASE), after, -np.inf)
-        if not np.any(np.isfinite(held)):
-            return r + 1
-        active[int(np.argmax(held))] = False
+            force += t[drop]
+            active[drop] = False
     return 0
 
 
@@ -240,7 +264,7 @@ def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequ
         x = r
         for _ in range(OUTER_ROUNDS):
             n, b = half_planes(x, t, regions)
-            x, active = solve_active_set(r, eps, n, b, x, pin_end, active, loop=loop)
+            x, active = solve_active_set(r, eps, n, b, pin_end, active, loop=loop)
         clear = all(np.all(r.values(x, t)[2:-2] > r.c) for r in regions)
         kappa = np.max(menger_curvature(x))
         if clear and kappa < best_kappa:

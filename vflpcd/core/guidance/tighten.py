@@ -174,7 +174,7 @@ def tighten_path(xy: np.ndarray, times: np.ndarray, anchor: Callable[[np.ndarray
         x, active = r, None
         for _ in range(OUTER_ROUNDS + 1):
             n, b = body_half_planes(x, t, body, keepouts, slack)
-            x, active = solve_active_set(road, eps, n, b, x, pin_end, active, shape=road, pins=r, loop=loop)
+            x, active = solve_active_set(road, eps, n, b, pin_end, active, shape=road, pins=r, loop=loop)
         clear = np.all(disc_gaps(x, body, keepouts, t)[2:] + slack[2:] > -CLEAR_TOLERANCE)
         if clear and np.max(menger_curvature(x)) <= kappa_max:
             return x, t

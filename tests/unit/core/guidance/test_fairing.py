@@ -96,7 +96,7 @@ def test_the_convex_step_is_the_exact_minimiser(loop):
     n, b = half_planes(r, np.zeros(41), _values([o]))
     assert np.isfinite(b).sum() > 5
     eps = (SPACING / 4.0) ** 4
-    x, _ = solve_active_set(r, eps, n, b, r, pin_end=True, loop=loop)
+    x, _ = solve_active_set(r, eps, n, b, pin_end=True, loop=loop)
     K = len(r)
     D = np.diff(np.eye(K), 2, axis=0)
     H = np.kron(D.T @ D + eps * np.eye(K), np.eye(2))
@@ -130,8 +130,8 @@ def test_a_warm_active_set_gives_the_same_minimiser():
     r = np.column_stack([np.linspace(0, 10, 41), np.zeros(41)])
     n, b = half_planes(r, np.zeros(41), _values([o]))
     eps = (SPACING / 4.0) ** 4
-    cold, active = solve_active_set(r, eps, n, b, r, pin_end=True)
-    warm, _ = solve_active_set(r, eps, n, b, r, pin_end=True, active0=active | np.isfinite(b))
+    cold, active = solve_active_set(r, eps, n, b, pin_end=True)
+    warm, _ = solve_active_set(r, eps, n, b, pin_end=True, active0=active | np.isfinite(b))
     assert np.max(np.abs(warm - cold)) < 1e-6
 
 
@@ -167,8 +167,8 @@ def test_the_compiled_loop_and_the_numpy_path_give_the_same_minimiser(seed):
     n, b = half_planes(r, np.zeros(81), _values(obstacles))
     shape = np.column_stack([r[:, 0], np.zeros(81)]) if seed % 2 else None
     eps = (SPACING / (2.0 + 4 * seed)) ** 4
-    x_np, a_np = solve_active_set(r, eps, n, b, r, seed % 3 == 0, shape=shape)
-    x_c, a_c = solve_active_set(r, eps, n, b, r, seed % 3 == 0, shape=shape, loop=active_set_loop())
+    x_np, a_np = solve_active_set(r, eps, n, b, seed % 3 == 0, shape=shape)
+    x_c, a_c = solve_active_set(r, eps, n, b, seed % 3 == 0, shape=shape, loop=active_set_loop())
     np.testing.assert_array_equal(a_np, a_c)
     g = np.zeros_like(r) if shape is None else shape
     J = lambda z: eps * np.sum((z - r) ** 2) + np.sum(np.diff(z - g, 2, axis=0) ** 2)
@@ -176,10 +176,11 @@ def test_the_compiled_loop_and_the_numpy_path_give_the_same_minimiser(seed):
     np.testing.assert_allclose(x_c, x_np, atol=1e-3)
 
 
-def test_the_active_set_does_not_cycle_where_jumping_to_each_minimiser_did():
-    """A stiff path (l = 64 m) through a row of obstacles on both sides: the active set released
-    and re-added the same half-planes until its round cap when it jumped to each round's
-    minimiser; stepping only as far as the half-planes let it, it converges."""
+def test_the_active_set_converges_in_few_rounds_where_a_primal_one_cycled_or_crawled():
+    """A stiff path (l = 64 m) through a row of obstacles on both sides: an active set that jumped
+    to each round's minimiser released and re-added the same half-planes until its round cap, and
+    a primal one that stepped only as far as the half-planes let it moved one contact point a
+    round; the dual active set converges in a few rounds per half-plane that ends active."""
     import vflpcd.core.guidance.fairing as fairing
 
     rng = np.random.default_rng(13)
@@ -194,17 +195,17 @@ def test_the_active_set_does_not_cycle_where_jumping_to_each_minimiser_did():
         rounds.append(loop(*args))
         return rounds[-1]
 
-    solve_active_set(r, (SPACING / 64.0) ** 4, n, b, r, False, loop=counted)
-    assert 0 < rounds[0] < fairing.ACTIVE_ROUNDS, rounds
+    _, active = solve_active_set(r, (SPACING / 64.0) ** 4, n, b, False, loop=counted)
+    assert 0 < rounds[0] <= 3 * max(active.sum(), 1) < fairing.ACTIVE_ROUNDS, (rounds, active.sum())
 
 
 @LOOPS
-@pytest.mark.parametrize("cap", [3, 6, 9])
+@pytest.mark.parametrize("cap", [2, 3, 4])
 def test_an_active_set_stopped_at_its_round_cap_returns_a_path_that_keeps_every_half_plane(cap, loop, monkeypatch):
-    """Stopped by the round cap (cycling on a degenerate problem does that in practice), the solve
-    returns its last iterate that violates no half-plane, not the one it stopped at: a round that
-    added violated half-planes leaves an iterate that cuts into the repulsive regions (on this
-    problem, two obstacles beside a noisy path, at each of these caps before the fix)."""
+    """Stopped by the round cap, the solve returns a point that violates no half-plane: the dual
+    active set's iterates cut into the half-planes until it converges, so the cap makes every
+    violated half-plane active until a minimiser violates none (two obstacles beside a noisy path;
+    the iterate at each of these caps cuts in)."""
     import vflpcd.core.guidance.fairing as fairing
 
     rng = np.random.default_rng(59)
@@ -213,6 +214,6 @@ def test_an_active_set_stopped_at_its_round_cap_returns_a_path_that_keeps_every_
     r[:2, 1] = 0.0
     n, b = half_planes(r, np.zeros(41), _values(obstacles))
     monkeypatch.setattr(fairing, "ACTIVE_ROUNDS", cap)
-    x, _ = fairing.solve_active_set(r, (SPACING / 4.0) ** 4, n, b, r, pin_end=True, loop=loop)
+    x, _ = fairing.solve_active_set(r, (SPACING / 4.0) ** 4, n, b, pin_end=True, loop=loop)
     gap = np.where(np.isfinite(b), np.einsum("ij,ij->i", n, x) - b, 0.0)
     assert gap[2:-1].min() > -fairing.VIOLATION
