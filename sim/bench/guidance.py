@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vflpcd.controllers.loops import active_set_loop
+from vflpcd.controllers.loops import guidance_loops
 from vflpcd.controllers.hybrid_astar import HybridAStarParams, plan_scenario
 from vflpcd.core.obstacle_world import ObstacleWorld
 from vflpcd.config.scenarios import Scenario
@@ -57,7 +57,7 @@ def run_guidance(scenario: Scenario, repeat: int, safe_distance: float,
     """The guidance with the scenario's parameters (``virtual`` overrides their virtual-obstacle mode)."""
     params = scenario.guidance if virtual is None else replace(scenario.guidance, virtual=virtual)
     planner = GuidancePlanner(scenario.path, params, scenario.v_desired, scenario.a_lat_max,
-                              scenario.footprint.radius, scenario.control_period, qp_loop=active_set_loop)
+                              scenario.footprint.radius, scenario.control_period, loops=guidance_loops)
     obstacles = ObstacleWorld(scenario.obstacles).snapshot(0.0)
     t_pre = []
     for _ in range(3):

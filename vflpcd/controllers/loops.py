@@ -2,12 +2,12 @@
 
 Core stays pure (numpy and scipy only, no files): it writes a loop as plain Python
 (``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.path_kernel.nearest_segment``,
-``vflpcd.core.guidance.active_set_kernel.solve_loop``)
+``vflpcd.core.guidance.active_set_kernel.solve_loop``, ``vflpcd.core.guidance.integrate_kernel.step_loop``)
 and takes the compiled function as an argument. This module compiles each once per process, with
 numba's on-disk cache (beside the source, or numba's user-wide cache where that is read-only, or
 ``$NUMBA_CACHE_DIR``; the systemd unit sets it), so a later process loads it in milliseconds;
 with no writable place it compiles in memory at every start. Without numba ``ebrhrl_loop()``,
-``path_loop()`` and ``active_set_loop()`` return None and their users run their numpy paths.
+``path_loop()``, ``active_set_loop()`` and ``integrate_loop()`` return None and their users run their numpy paths.
 """
 
 from __future__ import annotations
@@ -41,6 +41,52 @@ def active_set_loop():
     from vflpcd.core.guidance.active_set_kernel import solve_loop
 
     return _compiled("active_set", solve_loop, _warm_active_set)
+
+
+@lru_cache(maxsize=1)
+def integrate_loop():
+    """``integrate_kernel.step_loop`` (the guidance's steps of eq. (xi_r)) compiled and loaded
+    (``_warm_integrate``), or None without numba."""
+    from vflpcd.core.guidance.integrate_kernel import step_loop
+
+    _scalars()
+    return _compiled("integrate", step_loop, _warm_integrate)
+
+
+@lru_cache(maxsize=1)
+def half_planes_loop():
+    """``half_plane_kernel.half_planes_loop`` (the fairing's half-planes) compiled and loaded
+    (``_warm_half_planes``), or None without numba."""
+    from vflpcd.core.guidance.half_plane_kernel import half_planes_loop as loop
+
+    _scalars()
+    return _compiled("half_planes", loop, _warm_half_planes)
+
+
+@lru_cache(maxsize=1)
+def guidance_loops():
+    """The guidance planner's loops compiled and loaded (``GuidanceLoops``), or None without numba."""
+    from vflpcd.core.guidance.planner import GuidanceLoops
+
+    if active_set_loop() is None:
+        return None
+    return GuidanceLoops(active_set=active_set_loop(), steps=integrate_loop(), half_planes=half_planes_loop())
+
+
+@lru_cache(maxsize=1)
+def _scalars() -> bool:
+    """Register the scalar functions that the guidance's loops call (``primitives``' and
+    ``integrate_kernel.step_time``) with numba, so that they compile with the loops; False without numba."""
+    try:
+        from numba.extending import register_jitable
+    except ImportError:
+        return False
+    from vflpcd.core.guidance.integrate_kernel import step_time
+    from vflpcd.core.guidance.primitives import cup_at, guiding_at, superellipse_at
+
+    for fn in (superellipse_at, step_time, cup_at, guiding_at):
+        register_jitable(fn)
+    return True
 
 
 def _compiled(name: str, fn, warm):
@@ -85,3 +131,20 @@ def _warm_active_set(loop) -> None:
 
     loop(np.eye(1, 4), np.zeros(4), np.zeros((2, 2)), np.zeros(2), np.zeros(2, bool), np.zeros(2, bool),
          np.zeros(4), 1, 1.0, 1e-6, 1e-13)
+
+
+def _warm_integrate(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``grid.integrate`` passes."""
+    import numpy as np
+
+    z = np.zeros
+    loop(z(7), z((2, 2)), z((1, 1, 2)), np.ones((1, 1), bool), np.array([0.0, 0.0, 1.0, 32.0]), z((0, 6)), z(0),
+         z(0), z((0, 13)), z((0, 18)), z(0, np.int64), np.array([0.3, 0.2, 1.0, 1.0, 1e-3, 0.1, 1.0, 1.0, 0.0, 0.0,
+         1.0, 0.0, 0.0, 1.0]), z(0), z(3, np.int64))
+
+
+def _warm_half_planes(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``fairing.compiled_half_planes`` passes."""
+    import numpy as np
+
+    loop(np.zeros((1, 2)), np.zeros(1), np.zeros((0, 12)), 0.8, 6, 1e-10, np.zeros((1, 2)), np.zeros(1))

@@ -15,7 +15,7 @@ from vflpcd.core.guidance.planner3d import GuidancePlanner3D
 from vflpcd.core.guidance.tighten import Body
 from vflpcd.config.params import vflpc_params
 from vflpcd.core.vflpc import VFLPC, VFLPCParams
-from vflpcd.controllers.loops import active_set_loop, ebrhrl_loop, path_loop
+from vflpcd.controllers.loops import ebrhrl_loop, guidance_loops, path_loop
 from vflpcd.base.paths import config_dir
 from vflpcd.base.tomlread import load_table
 from vflpcd.config.vehicles import state_names
@@ -89,8 +89,8 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
     planner_cls = GuidancePlanner if scenario.dim == 2 else GuidancePlanner3D
     planner = planner_cls(scenario.path, scenario.guidance, scenario.v_desired, scenario.a_lat_max,
                           scenario.footprint.radius, model.dt, kappa_limit=curvature_limit(scenario),
-                          body=planner_body(scenario.footprint), qp_loop=active_set_loop)
-    planner.warm()          # the compiled active set loaded now, not in the first tick's plan
+                          body=planner_body(scenario.footprint), loops=guidance_loops)
+    planner.warm()          # the compiled loops loaded now, not in the first tick's plan
     if compensation and not np.isclose(scenario.control_period, model.dt):
         raise ValueError(f"GP compensation learns one-model-step transitions: scenario {scenario.name!r} runs "
                          f"every {scenario.control_period} s, the model steps {model.dt} s")

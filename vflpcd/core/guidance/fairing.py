@@ -42,6 +42,7 @@ FAIR_MIN, FAIR_MAX = 2.0, 64.0  # fairing length l, m
 HEADING_TOLERANCE = np.radians(5.0)  # a planned start direction further off the robot's heading is faired
 SPACING = 0.25  # resampling step h, m
 CLEAR_LEVEL = 0.8  # half-planes touch varphi = CLEAR_LEVEL * c_i: just outside Q_i (c_i < 0)
+NEWTON, NEWTON_TOL = 6, 1e-10  # Newton steps to that level (at most), and the miss in varphi that ends them
 OUTER_ROUNDS = 3  # re-convexifications
 PENALTY = 1e7  # spring holding an active half-plane or a pinned point: it gives way by ~1e-7 m
 ACTIVE_ROUNDS = 200  # active-set rounds per convex problem (cap)
@@ -93,14 +94,32 @@ def half_planes(x: np.ndarray, t: np.ndarray, regions: Sequence[Region]) -> tupl
         near = np.nonzero((v < 0.0) & (v / c < worst))[0]  # v / c: 1 on Q_i, 0 on R_i
         if near.size == 0:
             continue
-        q = x[near]
-        for _ in range(6):  # Newton along the gradient to varphi_i = CLEAR_LEVEL c_i
-            vq, gq = region.value_grad(q, t[near])
-            q = q + ((CLEAR_LEVEL * c - vq) / np.maximum(np.einsum("ij,ij->i", gq, gq), 1e-12))[:, None] * gq
-        _, gq = region.value_grad(q, t[near])
+        q, tq = x[near], t[near]
+        gq = np.zeros_like(q)
+        going = np.arange(len(near))      # the points whose Newton has not ended
+        for step in range(NEWTON + 1):    # Newton along the gradient to varphi_i = CLEAR_LEVEL c_i
+            vg, gg = region.value_grad(q[going], tq[going])
+            gq[going] = gg
+            miss = CLEAR_LEVEL * c - vg
+            if step == NEWTON:
+                break
+            on = np.abs(miss) > NEWTON_TOL
+            going, miss, gg = going[on], miss[on], gg[on]
+            if going.size == 0:
+                break
+            q[going] += (miss / np.maximum(np.einsum("ij,ij->i", gg, gg), 1e-12))[:, None] * gg
         nq = gq / np.maximum(np.linalg.norm(gq, axis=1, keepdims=True), 1e-12)
         n[near], b[near] = nq, np.einsum("ij,ij->i", nq, q)
         worst[near] = v[near] / c
+    return n, b
+
+
+def compiled_half_planes(loop, rows: np.ndarray, x: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``half_planes`` by ``half_plane_kernel.half_planes_loop`` compiled (``loop``), for the planar
+    regions whose ``ObstacleImplicit.row`` are ``rows`` (R, 12)."""
+    n, b = np.empty((len(x), 2)), np.empty(len(x))
+    loop(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(t, dtype=float), rows, CLEAR_LEVEL, NEWTON,
+         NEWTON_TOL, n, b)
     return n, b
 
 
@@ -242,12 +261,14 @@ def _solve_numpy(low0: np.ndarray, f0: np.ndarray, n: np.ndarray, b: np.ndarray,
 
 
 def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequence[Region],
-              heading: np.ndarray | None = None, pin_end: bool = False, loop=None) -> np.ndarray:
+              heading: np.ndarray | None = None, pin_end: bool = False, loop=None, planes=None) -> np.ndarray:
     """The path xy (K, d) (reached at times (K,)) with its peak curvature brought within kappa_max
     and, with ``heading`` (d,), leaving the start in the robot's heading (module docstring); with
     ``pin_end`` the last point stays where it is (the goal);
     returned unchanged (not resampled) if it already does both.
-    ``regions``: the repulsive regions to stay out of; ``loop``: ``solve_active_set``'s."""
+    ``regions``: the repulsive regions to stay out of; ``loop``: ``solve_active_set``'s;
+    ``planes``: (points, times) -> the regions' half-planes (default ``half_planes``; the planner
+    passes ``compiled_half_planes``)."""
     if not np.isfinite(kappa_max) or len(xy) < 7:
         return xy
     first = xy[min(int(np.ceil(SPACING / max(np.linalg.norm(xy[1] - xy[0]), 1e-9))), len(xy) - 1)] - xy[0]
@@ -263,7 +284,7 @@ def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequ
         eps = (SPACING / fair) ** 4
         x = r
         for _ in range(OUTER_ROUNDS):
-            n, b = half_planes(x, t, regions)
+            n, b = half_planes(x, t, regions) if planes is None else planes(x, t)
             x, active = solve_active_set(r, eps, n, b, pin_end, active, loop=loop)
         clear = all(np.all(r.values(x, t)[2:-2] > r.c) for r in regions)
         kappa = np.max(menger_curvature(x))

@@ -17,7 +17,6 @@ planned is thus never circled backwards.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -25,7 +24,8 @@ import numpy as np
 
 from vflpcd.core.guidance.field import GuidanceField
 from vflpcd.core.guidance.implicit import GuidanceError
-from vflpcd.core.guidance.primitives import bump, cup_at, guiding, guiding_at, unit
+from vflpcd.core.guidance.integrate_kernel import ENTERED, FILL, LEFT_GRID, REACHED, VANISHED, step_loop
+from vflpcd.core.guidance.primitives import bump, guiding, unit
 
 BACKWARDS = -0.3  # cos between the planned circulation and the path tangent that flips gamma_i at entry
 
@@ -117,16 +117,6 @@ class FieldGrid:
         return self.path.bounds
 
 
-def step_time(k: int, t0: float, beta: float, speed: float, step_times) -> float:
-    """When the trajectory reaches step k: from step_times (K,) (an array or a list) where known,
-    else at ``speed``."""
-    if step_times is not None and len(step_times):
-        if k < len(step_times):
-            return float(step_times[k])
-        return float(step_times[-1]) + (k - len(step_times) + 1) * beta / max(speed, 1e-3)
-    return t0 + k * beta / max(speed, 1e-3)
-
-
 @dataclass(frozen=True)
 class Integration:
     """xy (K, 2) the planned points; reached: progress reached x_end; inherited: steps that reused
@@ -142,113 +132,69 @@ class Integration:
 
 def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: float, beta: float,
               epsilon: float, max_steps: int, t0: float = 0.0, speed: float = 1.0,
-              heading: np.ndarray | None = None, step_times: np.ndarray | None = None) -> Integration:
+              heading: np.ndarray | None = None, step_times: np.ndarray | None = None, loop=None) -> Integration:
     """Run eq. (xi_r) from start (2,) until the path progress reaches x_end.
 
     Moving obstacles are placed where they will be when the trajectory gets there: at
     step_times[k] for step k (from an earlier pass's speed plan) or, beyond them, advancing at
     ``speed``; heading (2,) is the direction inherited if the first vector is near zero. Raises
-    GuidanceError if the trajectory leaves the grid.
+    GuidanceError if the trajectory leaves the grid. The steps are ``integrate_kernel.step_loop``'s:
+    ``loop`` is it compiled (``vflpcd.controllers.loops.integrate_loop``), None runs it interpreted.
     """
-    x, y = float(start[0]), float(start[1])
+    step = step_loop if loop is None else loop
     pg = grid.path
-    ox, oy, h = float(pg.origin[0]), float(pg.origin[1]), pg.h
-    nx, ny = pg.data.shape[:2]
-    pdata, filled = pg.data, pg.filled
-    inv_h = 1.0 / h
-    # per obstacle: origin, the float cell-index limits (nx - 0.5, ny - 0.5), data, the side rule's gamma
-    local = [(float(g.origin[0]), float(g.origin[1]), g.data.shape[0] - 0.5, g.data.shape[1] - 0.5, g.data, term.gamma)
-             for g, term in zip(grid.obstacles, field.statics)]
-    gammas: list[float | None] = [None] * len(local)
-    prev = None if heading is None else tuple(np.asarray(heading, float) / np.linalg.norm(heading))
-    virtual_off: list[int | None] = [None] * len(field.virtuals)
-    virt = [(v, v.implicit.center, float(v.implicit.axes[0])) for v in field.virtuals]
     if any(v.implicit.p != 2.0 or v.implicit.axes[0] != v.implicit.axes[1] for v in field.virtuals):
         raise GuidanceError("virtual obstacles must be circles")
-    k_c, k_r = field.k_c, field.k_r
-    # per mover, in plain floats: its centre at its stamp, velocity, stamp and squared reach
-    movers = [(term, term.implicit, float(term.implicit.center[0]), float(term.implicit.center[1]),
-               float(term.implicit.velocity[0]), float(term.implicit.velocity[1]), term.implicit.stamp,
-               term.implicit.reach ** 2) for term in field.movers]
+    state = np.zeros(7)
+    state[:2] = start[:2]
+    if heading is not None:
+        state[2:5] = *(np.asarray(heading, float) / np.linalg.norm(heading)), 1.0
+    xy = np.empty((max_steps + 1, 2))
+    xy[0] = state[:2]
+    filled = np.array(pg.filled, dtype=bool)
+    pgrid = np.array([pg.origin[0], pg.origin[1], 1.0 / pg.h, BLOCK])
+    cells = [g.data.shape[:2] for g in grid.obstacles]
+    offsets = np.cumsum([0] + [5 * nx * ny for nx, ny in cells])
+    statics = np.array([[g.origin[0], g.origin[1], nx, ny, off, term.gamma] for g, (nx, ny), off, term
+                        in zip(grid.obstacles, cells, offsets, field.statics)]).reshape(-1, 6)
+    sdata = np.concatenate([g.data.ravel() for g in grid.obstacles] + [np.zeros(0)])
+    gammas = np.zeros(len(field.statics))
+    movers = np.array([term.implicit.row() + [term.gamma] for term in field.movers]).reshape(-1, 13)
+    virtuals = np.array([_virtual_row(v) for v in field.virtuals]).reshape(-1, 18)
+    virtual_off = np.full(len(field.virtuals), -1, dtype=np.int64)
     po, pd = field.path.progress_frame()  # progress = (xi - po) . pd
-    if step_times is not None:
-        step_times = step_times.tolist()      # plain floats, indexed every step
-    xy = [(x, y)]
-    inherited = 0
-    reached = False
-    for k in range(max_steps):
-        fi, fj = (x - ox) * inv_h + 0.5, (y - oy) * inv_h + 0.5  # nearest cell: floor(index + 0.5)
-        if not (0.0 <= fi < nx and 0.0 <= fj < ny):
-            raise GuidanceError(f"the planned path left the grid at ({x:.2f}, {y:.2f}); grid bounds {pg.bounds}")
-        i, j = int(fi), int(fj)
-        if not filled[i // BLOCK][j // BLOCK]:
-            pg.fill(i // BLOCK, j // BLOCK)
-        cpx, cpy = pdata.item(i, j, 0), pdata.item(i, j, 1)
-        P, Vx, Vy = 1.0, 0.0, 0.0
-        for n, (gx0, gy0, gnx, gny, gdata, gamma_side) in enumerate(local):
-            fa, fb = (x - gx0) * inv_h, (y - gy0) * inv_h
-            if not (-0.5 <= fa < gnx and -0.5 <= fb < gny):
-                continue
-            a, b = int(fa + 0.5), int(fb + 0.5)
-            cup = gdata.item(a, b, 0)
-            if cup == 1.0:
-                continue
-            rpx, rpy, rmx, rmy = gdata.item(a, b, 1), gdata.item(a, b, 2), gdata.item(a, b, 3), gdata.item(a, b, 4)
-            if gammas[n] is None:  # first entry into R_i: keep the side rule's gamma_i unless it runs backwards
-                tx, ty = field.path.tangent(x, y)
-                rx, ry = (rpx, rpy) if gamma_side > 0 else (rmx, rmy)
-                gammas[n] = -gamma_side if rx * tx + ry * ty < BACKWARDS else gamma_side
-            rx, ry = (rpx, rpy) if gammas[n] > 0 else (rmx, rmy)
-            P *= cup
-            Vx, Vy = Vx + (1.0 - cup) * rx, Vy + (1.0 - cup) * ry
-        if movers:
-            t = step_time(k, t0, beta, speed, step_times)
-            for term, o, cx, cy, vx, vy, stamp, reach2 in movers:
-                if (x - cx - vx * (t - stamp)) ** 2 + (y - cy - vy * (t - stamp)) ** 2 > reach2:
-                    continue
-                phi, gx, gy = o.value_grad_at(x, y, t)
-                cup = cup_at(phi, o.c, field.l1, field.l2)
-                chx, chy = guiding_at(term.gamma, field.k_r, phi, gx, gy)
-                chn = max(math.hypot(chx, chy), 1e-300)
-                P *= cup
-                Vx, Vy = Vx + (1.0 - cup) * chx / chn, Vy + (1.0 - cup) * chy / chn
-        free = P == 1.0  # outside every actual reactive region: where virtual obstacles may act
-        progress = (x - po[0]) * pd[0] + (y - po[1]) * pd[1]
-        for n, (term, c, radius) in enumerate(virt):
-            if virtual_off[n] is not None:
-                continue
-            dx, dy = x - c[0], y - c[1]
-            r = (dx * dx + dy * dy) ** 0.5
-            if r >= radius or r == 0.0:
-                continue
-            if progress >= term.x_stop or term.parent.value_at(x, y) <= 0.0:
-                virtual_off[n] = k  # past the entry into R_actl, or inside it (remark 2): stop acting
-                continue
-            if not free:
-                continue
-            # circle virtual obstacle: varphi = r / radius - 1, grad = (dx, dy) / (r radius)
-            cv = term.implicit.c
-            phi = r / radius - 1.0
-            s_i = 0.0 if phi <= cv else math.exp(k_c / (cv - phi))
-            gx, gy = dx / (r * radius), dy / (r * radius)
-            kx, ky = guiding_at(term.gamma, k_r, phi - cv, gx, gy)  # gamma E grad - k_r (varphi - c) grad
-            kn = (kx * kx + ky * ky) ** 0.5
-            P *= s_i
-            Vx, Vy = Vx + (1.0 - s_i) * kx / kn, Vy + (1.0 - s_i) * ky / kn
-        cx, cy = P * cpx + Vx, P * cpy + Vy
-        norm = (cx * cx + cy * cy) ** 0.5
-        if norm < epsilon:
-            if prev is None:
-                raise GuidanceError(f"the field vanishes at the start ({x:.2f}, {y:.2f}) and there is no heading to inherit")
-            ux, uy = prev
-            inherited += 1
+    params = np.array([field.l1, field.l2, field.k_c, field.k_r, epsilon, beta, x_end, max_steps,
+                       po[0], po[1], pd[0], pd[1], t0, speed], dtype=float)
+    times = np.zeros(0) if step_times is None else np.asarray(step_times, float)
+    aux = np.zeros(3, dtype=np.int64)
+    while True:
+        status = step(state, xy, pg.data, filled, pgrid, statics, sdata, gammas, movers, virtuals, virtual_off,
+                      params, times, aux)
+        if status == FILL:
+            pg.fill(int(aux[0]), int(aux[1]))
+            filled[aux[0], aux[1]] = True
+        elif status == ENTERED:  # first entry into R_i: keep the side rule's gamma_i unless it runs backwards
+            n, a, b = (int(v) for v in aux)
+            side = field.statics[n].gamma
+            cell = grid.obstacles[n].data[a, b]
+            tx, ty = field.path.tangent(float(state[0]), float(state[1]))
+            rx, ry = (cell[1], cell[2]) if side > 0 else (cell[3], cell[4])
+            gammas[n] = -side if rx * tx + ry * ty < BACKWARDS else side
+        elif status == LEFT_GRID:
+            raise GuidanceError(f"the planned path left the grid at ({state[0]:.2f}, {state[1]:.2f}); "
+                                f"grid bounds {pg.bounds}")
+        elif status == VANISHED:
+            raise GuidanceError(f"the field vanishes at the start ({state[0]:.2f}, {state[1]:.2f}) and there is "
+                                "no heading to inherit")
         else:
-            ux, uy = cx / norm, cy / norm
-            prev = (ux, uy)
-        x, y = x + beta * ux, y + beta * uy
-        xy.append((x, y))
-        if (x - po[0]) * pd[0] + (y - po[1]) * pd[1] >= x_end:
-            reached = True
             break
-    return Integration(xy=np.asarray(xy), reached=reached, inherited=inherited, gammas=tuple(gammas),
-                       virtual_off=tuple(virtual_off))
+    k = int(state[6])
+    return Integration(xy=xy[:k + 1].copy(), reached=status == REACHED, inherited=int(state[5]),
+                       gammas=tuple(None if g == 0.0 else float(g) for g in gammas),
+                       virtual_off=tuple(None if v < 0 else int(v) for v in virtual_off))
+
+
+def _virtual_row(term) -> list[float]:
+    """A virtual obstacle's row of ``step_loop``'s ``virtuals``."""
+    o = term.implicit
+    return [o.center[0], o.center[1], o.axes[0], o.c, term.gamma, term.x_stop] + term.parent.row()

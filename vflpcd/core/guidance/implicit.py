@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from vflpcd.core.guidance.primitives import superellipse_at
 from vflpcd.core.path import ReferencePath
 
 E = np.array([[0.0, -1.0], [1.0, 0.0]])  # rotation by +90 deg
@@ -320,25 +321,22 @@ class ObstacleImplicit:
             return float(np.max(self.axes))
         return float(np.linalg.norm(self.axes))
 
+    def row(self) -> list[float]:
+        """A planar obstacle in the compiled loops' layout (``integrate_kernel``,
+        ``half_plane_kernel``): centre x, y at the stamp, velocity x, y, stamp, squared reach, cos and
+        sin of the yaw, the two axes, p and c."""
+        return [self.center[0], self.center[1], self.velocity[0], self.velocity[1], self.stamp, self.reach ** 2,
+                self.Rz[0, 0], self.Rz[1, 0], self.axes[0], self.axes[1], self.p, self.c]
+
     def value_at(self, x: float, y: float, t: float = 0.0) -> float:
         """varphi at one planar point, in plain floats (the integration's hot path)."""
         return self.value_grad_at(x, y, t)[0]
 
     def value_grad_at(self, x: float, y: float, t: float = 0.0) -> tuple[float, float, float]:
         """``value_grad`` at one planar point in plain floats: (varphi, d varphi / dx, d varphi / dy)."""
-        cx = self.center[0] + self.velocity[0] * (t - self.stamp)
-        cy = self.center[1] + self.velocity[1] * (t - self.stamp)
-        c, s = self.Rz[0, 0], self.Rz[1, 0]
-        ax0, ax1 = self.axes[0], self.axes[1]
-        zx = ((x - cx) * c + (y - cy) * s) / ax0
-        zy = (-(x - cx) * s + (y - cy) * c) / ax1
-        p = self.p
-        ax, ay = abs(zx), abs(zy)
-        S = ax ** p + ay ** p
-        coef = max(S, 1e-300) ** (1.0 / p - 1.0)
-        hx = coef * math.copysign(ax ** (p - 1.0), zx) / ax0 if zx != 0.0 else 0.0
-        hy = coef * math.copysign(ay ** (p - 1.0), zy) / ax1 if zy != 0.0 else 0.0
-        return S ** (1.0 / p) - 1.0, hx * c - hy * s, hx * s + hy * c
+        return superellipse_at(x, y, self.center[0] + self.velocity[0] * (t - self.stamp),
+                               self.center[1] + self.velocity[1] * (t - self.stamp), self.Rz[0, 0], self.Rz[1, 0],
+                               self.axes[0], self.axes[1], self.p)
 
     def value_grad_at_3d(self, x: float, y: float, z: float, t: float = 0.0) -> tuple[float, float, float, float]:
         """``value_grad`` at one 3-D point in plain floats: (varphi, its gradient's x, y, z)."""

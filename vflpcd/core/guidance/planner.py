@@ -36,7 +36,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from vflpcd.core.guidance.fairing import Region, fair_path
+from vflpcd.core.guidance.fairing import Region, compiled_half_planes, fair_path
 from vflpcd.core.guidance.field import ActualTerm, GuidanceField, VirtualTerm
 from vflpcd.core.guidance.grid import FieldGrid, Integration, integrate
 from vflpcd.core.guidance.implicit import E, GraphPath, GuidanceError, ObstacleImplicit, graph_horizon
@@ -98,6 +98,17 @@ class GuidancePlan:
     virtual_off: tuple = ()
 
 
+@dataclass(frozen=True)
+class GuidanceLoops:
+    """The guidance's loops compiled (``vflpcd.controllers.loops.guidance_loops``), None each where
+    its numpy path runs: the fairing's and tight path's active set (``active_set_kernel``), the
+    steps of eq. (xi_r) (``integrate_kernel``) and the fairing's half-planes (``half_plane_kernel``)."""
+
+    active_set: Callable | None = None
+    steps: Callable | None = None
+    half_planes: Callable | None = None
+
+
 class PlannerBase:
     """What the planar and the 3-D planner share: checked inputs and the obstacles' implicits."""
 
@@ -105,12 +116,13 @@ class PlannerBase:
 
     def __init__(self, path: ReferencePath, params: GuidanceParams, v_desired: float, a_lat_max: float,
                  body_radius: float, control_period: float, kappa_limit: float = np.inf,
-                 body: Body | None = None, qp_loop: Callable[[], Callable | None] | None = None) -> None:
-        """``qp_loop``: a function that returns the fairing's active set compiled (``fairing.solve_active_set``'s
-        ``loop``; ``vflpcd.controllers.loops.active_set_loop``). The planner is sent to the worker
-        processes, and a function travels there by name and loads the compiled loop from numba's
-        cache (``warm``); a compiled loop sent itself arrives without its cache and compiles again
-        at the first replan (about 7 s on this project's machines)."""
+                 body: Body | None = None, loops: Callable[[], GuidanceLoops | None] | None = None) -> None:
+        """``loops``: a function that returns the guidance's loops compiled (``GuidanceLoops``;
+        ``vflpcd.controllers.loops.guidance_loops``), or None where there are none (their numpy
+        paths run). The planner is sent to the worker processes, and a function travels there by
+        name and loads the compiled loops from numba's cache (``warm``); a compiled loop sent itself
+        arrives without its cache and compiles again at the first replan (about 7 s on this
+        project's machines)."""
         if path.dim != self.dim:
             raise GuidanceError(f"{type(self).__name__} needs a {self.dim}-D path, got a {path.dim}-D one")
         for name, value in (("v_desired", v_desired), ("a_lat_max", a_lat_max), ("body_radius", body_radius),
@@ -125,16 +137,16 @@ class PlannerBase:
         self.body = body if body is not None else Body(np.zeros(1), float(body_radius))
         self.kappa_limit = float(kappa_limit)
         self.kappa_max = params.curvature_use * kappa_limit
-        self.qp_loop = qp_loop
+        self.loops = loops
 
     def warm(self) -> None:
-        """Load what a replan runs (the compiled active set), so that a worker's first replan does
-        not wait for it."""
-        self._qp()
+        """Load what a replan runs (the compiled loops), so that a worker's first replan does not
+        wait for it."""
+        self._loops()
 
-    def _qp(self):
-        """The compiled active set, or None (``qp_loop``)."""
-        return None if self.qp_loop is None else self.qp_loop()
+    def _loops(self) -> GuidanceLoops:
+        """The compiled loops (``loops``), or a ``GuidanceLoops`` of None (the numpy paths)."""
+        return (self.loops and self.loops()) or GuidanceLoops()
 
     def drivable(self, plan: "GuidancePlan") -> bool:
         """Whether the plan keeps the robot's curvature limit (``kappa_limit``) and its lateral
@@ -156,7 +168,7 @@ class PlannerBase:
                          mover_margin_time=0.0, reactive_margin=min(p.reactive_margin, p.recovery_reactive_margin),
                          reactive_per_speed=0.0)
         return type(self)(self.path, narrow, self.v_desired, self.a_lat_max, self.body_radius, self.dt,
-                          kappa_limit=self.kappa_limit, body=self.body, qp_loop=self.qp_loop)
+                          kappa_limit=self.kappa_limit, body=self.body, loops=self.loops)
 
     def margin(self, o: ObstacleState) -> float:
         """The clearance kept beyond the body radius from obstacle o: ``safety_margin``, plus
@@ -218,8 +230,13 @@ class PlannerBase:
         leaving the start along ``heading`` (d,) when given, ending where it ends with ``pin_end``."""
         regions = [Region(partial(_value_grad_at_times, term.implicit), term.implicit.c,
                           partial(_within_reach, term.implicit)) for term in terms]
+        loops = self._loops()
+        planes = None
+        if loops.half_planes is not None and self.dim == 2:
+            rows = np.array([term.implicit.row() for term in terms], dtype=float).reshape(-1, 12)
+            planes = partial(compiled_half_planes, loops.half_planes, rows)
         return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, regions, heading, pin_end,
-                         self._qp())
+                         loops.active_set, planes)
 
     def tight_clearance(self, o: ObstacleState) -> float:
         """The clearance the tight path keeps between the body's discs and o's shape: ``tight_margin``
@@ -249,7 +266,7 @@ class PlannerBase:
             floor = min(0.0, self.least_gap(timed_trajectory(xy, s, v, t0, self.dt), moving)) - CLEAR_TOLERANCE
         for _ in range(MOVER_PASSES if moving else 1):
             out = tighten_path(xy, times, partial(feet_on_polyline, xy=stretch), self.kappa_max, self.body, keepouts,
-                               p.tight_length, heading, goal, field_times, self._qp())
+                               p.tight_length, heading, goal, field_times, self._loops().active_set)
             if out is None:
                 return None
             s_t, kappa, v_t = plan_speed(out[0], self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
@@ -489,7 +506,7 @@ class GuidancePlanner(PlannerBase):
         length = prepared.s_end - prepared.s0
         res: Integration = integration or integrate(
             field, prepared.grid, start, prepared.x_end, p.beta, p.epsilon, max_steps=int(4 * (length + 20.0) / p.beta),
-            t0=t0, speed=max(v0, 0.5 * self.v_desired), heading=heading, step_times=steps)
+            t0=t0, speed=max(v0, 0.5 * self.v_desired), heading=heading, step_times=steps, loop=self._loops().steps)
         times = steps if steps is not None and len(steps) else None
         xy = self.safe_smooth(res.xy, field.statics + field.movers, t0, times, field.path)
         goal = prepared.ends_path and res.reached

@@ -17,7 +17,8 @@ from typing import Sequence
 import numpy as np
 
 from vflpcd.core.guidance.field3d import GraphPath3D, GuidanceField3D, Obstacle3D
-from vflpcd.core.guidance.grid import BACKWARDS, step_time
+from vflpcd.core.guidance.grid import BACKWARDS
+from vflpcd.core.guidance.integrate_kernel import step_time
 from vflpcd.core.guidance.implicit import GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.planner import MOVER_PASSES, GuidancePlan, PlannerBase
 from vflpcd.core.guidance.primitives import cup_at

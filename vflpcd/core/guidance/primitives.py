@@ -50,6 +50,19 @@ def guiding_at(gamma: float, k: float, phi: float, gx: float, gy: float) -> tupl
     return -gamma * gy - k * phi * gx, gamma * gx - k * phi * gy
 
 
+def superellipse_at(x, y, cx, cy, c, s, ax0, ax1, p):
+    """(varphi, d varphi / dx, d varphi / dy) of the superellipse centred at (cx, cy), yaw (cos c,
+    sin s), axes ax0, ax1, exponent p, at (x, y): ``ObstacleImplicit.value_grad_at``."""
+    zx = ((x - cx) * c + (y - cy) * s) / ax0
+    zy = (-(x - cx) * s + (y - cy) * c) / ax1
+    ax, ay = abs(zx), abs(zy)
+    S = ax ** p + ay ** p
+    coef = max(S, 1e-300) ** (1.0 / p - 1.0)
+    hx = coef * math.copysign(ax ** (p - 1.0), zx) / ax0 if zx != 0.0 else 0.0
+    hy = coef * math.copysign(ay ** (p - 1.0), zy) / ax1 if zy != 0.0 else 0.0
+    return S ** (1.0 / p) - 1.0, hx * c - hy * s, hx * s + hy * c
+
+
 def guiding(gamma: float, k: float, phi: np.ndarray, grad: np.ndarray) -> np.ndarray:
     """gamma E grad phi - k phi grad phi for phi (N,), grad (N, 2): the chi_P / chi_R_i form."""
     return gamma * (grad @ E.T) - k * phi[:, None] * grad
