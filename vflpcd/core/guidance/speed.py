@@ -9,8 +9,6 @@ dt = 2 ds / (v_k + v_{k+1}).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 
@@ -54,16 +52,16 @@ def plan_speed(xy: np.ndarray, v_desired: float, a_lat_max: float, a_accel: floa
     kappa = np.maximum(k, np.maximum(np.roll(k, 1), np.roll(k, -1)))
     kappa[0], kappa[-1] = max(k[0], k[min(1, len(k) - 1)]), max(k[-1], k[max(len(k) - 2, 0)])
     with np.errstate(divide="ignore"):
-        v = np.minimum(v_desired, np.sqrt(a_lat_max / np.clip(kappa, 1e-12, kappa_cap))).tolist()
-    ds = np.diff(s).tolist()
+        v = np.minimum(v_desired, np.sqrt(a_lat_max / np.clip(kappa, 1e-12, kappa_cap)))
     v[0] = min(v[0], max(v_start, 0.0))
-    for i in range(len(v) - 1):  # forward: acceleration limit
-        v[i + 1] = min(v[i + 1], math.sqrt(v[i] ** 2 + 2.0 * a_accel * ds[i]))
+    w = v * v                      # the passes on v^2 (module docstring), each in closed form:
+    up = 2.0 * a_accel * s         # forward: w_k = min(w_k, min_{j<k} w_j + 2 a_acc (s_k - s_j))
+    w[1:] = np.minimum(w[1:], np.minimum.accumulate(w[:-1] - up[:-1]) + up[1:])
     if v_end is not None:
-        v[-1] = min(v[-1], v_end)
-    for i in range(len(v) - 2, -1, -1):  # backward: deceleration limit
-        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2.0 * a_decel * ds[i]))
-    return s, kappa, np.array(v)
+        w[-1] = min(w[-1], v_end * v_end)
+    down = 2.0 * a_decel * s       # backward: w_k = min(w_k, min_{j>k} w_j + 2 a_dec (s_j - s_k))
+    w[:-1] = np.minimum(w[:-1], np.minimum.accumulate((w[1:] + down[1:])[::-1])[::-1] - down[:-1])
+    return s, kappa, np.sqrt(w)
 
 
 def arrival_times(s: np.ndarray, v: np.ndarray) -> np.ndarray:

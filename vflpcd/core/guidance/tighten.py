@@ -117,11 +117,16 @@ def disc_gaps(x: np.ndarray, body: Body, keepouts: Sequence[Keepout], times: np.
         idx = _within(k, body, x, times, 0.0)
         if idx.size == 0:
             continue
-        xi, ti, tk = x[idx], t[idx], times[idx]
-        for o_j in body.offsets:
-            sd = k.signed_distance(xi + o_j * ti, tk)
-            gap[idx] = np.minimum(gap[idx], sd - body.radius - k.clearance)
+        discs, tk = _disc_centres(x[idx], t[idx], body), np.tile(times[idx], len(body.offsets))
+        sd = k.signed_distance(discs, tk).reshape(len(body.offsets), idx.size)
+        gap[idx] = np.minimum(gap[idx], sd.min(axis=0) - body.radius - k.clearance)
     return gap
+
+
+def _disc_centres(x: np.ndarray, t: np.ndarray, body: Body) -> np.ndarray:
+    """The body's disc centres (J K, d) at points x (K, d) with unit tangents t (K, d), disc by
+    disc (J discs): one evaluation of a shape's distance takes them all."""
+    return (x[None] + body.offsets[:, None, None] * t[None]).reshape(-1, x.shape[1])
 
 
 def body_half_planes(x: np.ndarray, times: np.ndarray, body: Body, keepouts: Sequence[Keepout],
@@ -138,9 +143,9 @@ def body_half_planes(x: np.ndarray, times: np.ndarray, body: Body, keepouts: Seq
         idx = _within(k, body, x, times, REACH)     # only these points can get a half-plane from k
         if idx.size == 0:
             continue
-        xi, ti, si = x[idx], t[idx], slack[idx]
-        for o_j in body.offsets:
-            sd, g = _sd_grad(k, xi + o_j * ti, times[idx])
+        xi, si = x[idx], slack[idx]
+        sds, gs = _sd_grad(k, _disc_centres(xi, t[idx], body), np.tile(times[idx], len(body.offsets)))
+        for sd, g in zip(sds.reshape(-1, idx.size), gs.reshape(-1, idx.size, x.shape[1])):
             want = body.radius + k.clearance - si - sd
             near = (want > -REACH) & (want > need[idx])
             rows = idx[near]
