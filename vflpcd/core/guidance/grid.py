@@ -17,6 +17,8 @@ planned is thus never circled backwards.
 
 from __future__ import annotations
 
+import functools
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Callable
 
@@ -99,22 +101,21 @@ class FieldGrid:
     @classmethod
     def build(cls, field: GuidanceField, bounds: tuple[float, float, float, float], h: float) -> "FieldGrid":
         path = PathGrid.lazy(bounds, h, field.path_unit)
-        local = []
-        for term in field.statics:
-            o = term.implicit
-            r = o.reach + h
-            b = (o.center[0] - r, o.center[0] + r, o.center[1] - r, o.center[1] + r)
-            q, qshape = Grid.cells(b, h)
-            phi, g = o.value_grad(q)
-            cup, _ = bump(phi, o.c, field.l1, field.l2)
-            data = np.column_stack([cup, unit(guiding(1.0, field.k_r, phi, g))[0],
-                                    unit(guiding(-1.0, field.k_r, phi, g))[0]])
-            local.append(Grid(np.array([b[0], b[2]]), h, data.reshape(*qshape, 5)))
-        return cls(path=path, obstacles=tuple(local))
+        return cls(path=path, obstacles=tuple(_local_grid(term.implicit, field, h) for term in field.statics))
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:
         return self.path.bounds
+
+    @functools.cached_property
+    def packed(self) -> tuple[np.ndarray, np.ndarray]:
+        """The local grids in ``integrate_kernel.step_loop``'s layout: per grid its origin x, y,
+        cells nx, ny and offset into the second array, their data flattened one after another."""
+        cells = [g.data.shape[:2] for g in self.obstacles]
+        offsets = np.cumsum([0] + [5 * nx * ny for nx, ny in cells])
+        table = np.array([[g.origin[0], g.origin[1], nx, ny, off]
+                          for g, (nx, ny), off in zip(self.obstacles, cells, offsets)], dtype=float).reshape(-1, 5)
+        return table, np.concatenate([g.data.ravel() for g in self.obstacles] + [np.zeros(0)])
 
 
 @dataclass(frozen=True)
@@ -128,6 +129,33 @@ class Integration:
     inherited: int
     gammas: tuple
     virtual_off: tuple
+
+
+LOCAL_GRIDS = 64  # static obstacles' local grids kept for the next replans (least recently used dropped)
+_local_grids: OrderedDict = OrderedDict()
+
+
+def _local_grid(o, field: GuidanceField, h: float) -> Grid:
+    """The local grid of static obstacle o (5 channels over its reactive region's bounding box),
+    computed once for o's numbers, the field's k_r, l1, l2 and h: a static obstacle is the same
+    at the next replan, and its grid was a third of a replan among parked cars."""
+    key = (*o.row(), h, field.k_r, field.l1, field.l2)
+    grid = _local_grids.get(key)
+    if grid is None:
+        r = o.reach + h
+        b = (o.center[0] - r, o.center[0] + r, o.center[1] - r, o.center[1] + r)
+        q, qshape = Grid.cells(b, h)
+        phi, g = o.value_grad(q)
+        cup, _ = bump(phi, o.c, field.l1, field.l2)
+        data = np.column_stack([cup, unit(guiding(1.0, field.k_r, phi, g))[0], unit(guiding(-1.0, field.k_r, phi, g))[0]])
+        grid = Grid(np.array([b[0], b[2]]), h, data.reshape(*qshape, 5))
+        grid.data.flags.writeable = False
+        _local_grids[key] = grid
+        if len(_local_grids) > LOCAL_GRIDS:
+            _local_grids.popitem(last=False)
+    else:
+        _local_grids.move_to_end(key)
+    return grid
 
 
 def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: float, beta: float,
@@ -153,11 +181,8 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
     xy[0] = state[:2]
     filled = np.array(pg.filled, dtype=bool)
     pgrid = np.array([pg.origin[0], pg.origin[1], 1.0 / pg.h, BLOCK])
-    cells = [g.data.shape[:2] for g in grid.obstacles]
-    offsets = np.cumsum([0] + [5 * nx * ny for nx, ny in cells])
-    statics = np.array([[g.origin[0], g.origin[1], nx, ny, off, term.gamma] for g, (nx, ny), off, term
-                        in zip(grid.obstacles, cells, offsets, field.statics)]).reshape(-1, 6)
-    sdata = np.concatenate([g.data.ravel() for g in grid.obstacles] + [np.zeros(0)])
+    table, sdata = grid.packed
+    statics = np.column_stack([table, [term.gamma for term in field.statics]]) if len(table) else np.zeros((0, 6))
     gammas = np.zeros(len(field.statics))
     movers = np.array([term.implicit.row() + [term.gamma] for term in field.movers]).reshape(-1, 13)
     virtuals = np.array([_virtual_row(v) for v in field.virtuals]).reshape(-1, 18)
