@@ -23,7 +23,8 @@ from outside, gap_k > ``release``, are released first):
 
 Each step raises the dual objective, so no active set repeats: the rounds are about the number of
 half-planes that end active, where a primal active set, which needs a feasible start and moves
-one contact point a round, took 50-190 rounds on the fairings of the suite's follow_slow_car.
+a contact point one path point a round, took many times as many on the fairings among movers
+(``test_the_active_set_converges_in_few_rounds_where_a_primal_one_cycled_or_crawled``).
 Its iterates cut into the half-planes until the end, so when ``rounds`` run out, every violated
 half-plane is made active until a minimiser violates none (at most K more rounds): the point
 returned keeps the half-planes, though it is not the minimiser.

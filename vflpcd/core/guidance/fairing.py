@@ -20,8 +20,8 @@ varphi_i = CLEAR_LEVEL c_i just outside Q_i (a few outer rounds re-take them at 
 Each convex problem is solved by the dual active set of ``active_set_kernel`` (a banded Cholesky
 factorisation a round, compiled with numba where it is installed), started from the previous
 problem's final active set (the next outer round, the next l): its rounds are about the number of
-half-planes that end active (4-39 on the suite's follow_slow_car, where a primal active set took
-50-190); a solve that reaches the ``ACTIVE_ROUNDS`` cap returns a point that keeps every
+half-planes that end active, where a primal active set moved a contact point one path point a
+round; a solve that reaches the ``ACTIVE_ROUNDS`` cap returns a point that keeps every
 half-plane (not the minimiser). l is doubled from
 ``FAIR_MIN`` until the peak curvature is within kappa_max; if ``FAIR_MAX`` is reached the flattest
 clear path found is kept and the speed plan does what it can.

@@ -138,8 +138,8 @@ _local_grids: OrderedDict = OrderedDict()
 def _local_grid(o, field: GuidanceField, h: float) -> Grid:
     """The local grid of static obstacle o (5 channels over its reactive region's bounding box),
     computed once for o's numbers, the field's k_r, l1, l2 and h: a static obstacle is the same
-    at the next replan (perception stamps it anew: the stamp is not in the key), and its grid was
-    a third of a replan among parked cars."""
+    at the next replan (perception stamps it anew: the stamp is not in the key), and computing
+    the grids was most of a replan's preparation."""
     row = o.row()                       # its centre where the grid takes it (t = 0), not its stamp
     key = (*o.center_at(0.0), *row[2:4], *row[5:], h, field.k_r, field.l1, field.l2)
     grid = _local_grids.get(key)
