@@ -40,6 +40,7 @@ def active_set_loop():
     compiled and loaded (``_warm_active_set``), or None without numba."""
     from vflpcd.core.guidance.active_set_kernel import solve_loop
 
+    _scalars()
     return _compiled("active_set", solve_loop, _warm_active_set)
 
 
@@ -75,16 +76,18 @@ def guidance_loops():
 
 @lru_cache(maxsize=1)
 def _scalars() -> bool:
-    """Register the scalar functions that the guidance's loops call (``primitives``' and
-    ``integrate_kernel.step_time``) with numba, so that they compile with the loops; False without numba."""
+    """Register the scalar functions that the guidance's loops call (``primitives``',
+    ``integrate_kernel.step_time`` and ``active_set_kernel.dual_step``) with numba, so that they
+    compile with the loops; False without numba."""
     try:
         from numba.extending import register_jitable
     except ImportError:
         return False
+    from vflpcd.core.guidance.active_set_kernel import dual_step
     from vflpcd.core.guidance.integrate_kernel import step_time
     from vflpcd.core.guidance.primitives import cup_at, guiding_at, superellipse_at
 
-    for fn in (superellipse_at, step_time, cup_at, guiding_at):
+    for fn in (superellipse_at, step_time, cup_at, guiding_at, dual_step):
         register_jitable(fn)
     return True
 

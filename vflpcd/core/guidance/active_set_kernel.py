@@ -166,13 +166,21 @@ def solve_loop(low0, f0, n, b, constrained, active, x, rounds, penalty, violatio
                     t = max(-g / a, 0.0)
                     if t < part:
                         part, drop = t, k
-        if full <= part:
-            if not math.isfinite(full):
-                dual = False         # nothing moves point p out: restore
-                continue
-            active[p] = True
-            p = -1
-        else:
-            force += part
-            active[drop] = False
+        p, force, restore = dual_step(full, part, p, drop, active, force)
+        if restore:
+            dual = False
     return 0
+
+
+def dual_step(full, part, p, drop, active, force):
+    """One step of the dual active set once the force that makes half-plane p hold (``full``) and
+    the force at which active half-plane ``drop``'s multiplier reaches zero first (``part``) are
+    known: p made active (the next p is chosen afresh: -1), or ``drop`` released with the force
+    kept; ``active`` written in place. Returns (p, force, whether to restore: nothing moves p out)."""
+    if full <= part:
+        if not math.isfinite(full):
+            return p, force, True
+        active[p] = True
+        return -1, force, False
+    active[drop] = False
+    return p, force + part, False

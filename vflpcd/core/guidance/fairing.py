@@ -36,6 +36,7 @@ import numpy as np
 from scipy.linalg import LinAlgError
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
+from vflpcd.core.guidance.active_set_kernel import dual_step
 from vflpcd.core.guidance.speed import menger_curvature
 
 FAIR_MIN, FAIR_MAX = 2.0, 64.0  # fairing length l, m
@@ -248,15 +249,8 @@ def _solve_numpy(low0: np.ndarray, f0: np.ndarray, n: np.ndarray, b: np.ndarray,
         full = -g[p] / a[p] if a[p] > 0.0 else np.inf
         t = np.where(active & (a > 0.0), np.maximum(-g / np.where(a > 0.0, a, 1.0), 0.0), np.inf)
         drop = int(np.argmin(t))
-        if full <= t[drop]:
-            if not np.isfinite(full):
-                dual = False             # nothing moves point p out: restore
-                continue
-            active[p] = True
-            p = -1
-        else:
-            force += t[drop]
-            active[drop] = False
+        p, force, restore = dual_step(full, t[drop], p, drop, active, force)
+        dual = not restore
     return 0
 
 
