@@ -203,6 +203,8 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
         elif status == ENTERED:  # first entry into R_i: keep the side rule's gamma_i unless it runs backwards
             n, a, b = (int(v) for v in aux)
             side = field.statics[n].gamma
+            if side not in (1.0, -1.0):        # 0 would leave gamma_i undecided and the steps asking again
+                raise GuidanceError(f"obstacle {field.statics[n].implicit.name!r}: gamma must be +1 or -1, got {side}")
             cell = grid.obstacles[n].data[a, b]
             tx, ty = field.path.tangent(float(state[0]), float(state[1]))
             rx, ry = (cell[1], cell[2]) if side > 0 else (cell[3], cell[4])

@@ -72,3 +72,15 @@ def test_the_compiled_half_planes_are_the_numpy_ones(scene):
     np.testing.assert_array_equal(np.isfinite(b_c), held)
     np.testing.assert_allclose(n_c, n, rtol=0.0, atol=1e-12)
     np.testing.assert_allclose(b_c[held], b[held], rtol=1e-12, atol=1e-12)       # b = n . q: q tens of metres
+
+
+def test_a_static_obstacle_without_a_direction_is_an_error_not_a_loop(scene):
+    """gamma_i = 0 would leave the obstacle undecided at its first entry, and the steps would ask
+    for it again and again: it is refused by name."""
+    from vflpcd.core.guidance.implicit import GuidanceError
+
+    planner, prepared, field = scene
+    bad = replace(field, statics=[replace(field.statics[0], gamma=0.0)] + field.statics[1:], movers=[])
+    with pytest.raises(GuidanceError, match="gamma must be"):
+        integrate(bad, prepared.grid, np.zeros(2), prepared.x_end, 0.1, 1e-3, 3000, heading=np.array([1.0, 0.0]),
+                  loop=integrate_loop())
