@@ -24,6 +24,8 @@ previous model unchanged (the last good GP is kept).
 
 from __future__ import annotations
 
+import functools
+
 import logging
 from dataclasses import dataclass
 
@@ -208,7 +210,9 @@ class FITCGP:
 
     Zm (m, n_z) inducing inputs; hyp per-output hyper-parameters; n number of training
     samples folded in. Internal per-output arrays: Linv (n_y, m, m) = L^-1, Ainv (n_y, m, m)
-    = A^-1, c (n_y, m) = V Lambda^-1 y, alpha (n_y, m), W (n_y, m, m) = K_mm^-1 - Sigma.
+    = A^-1, c (n_y, m) = V Lambda^-1 y, alpha (n_y, m); ``W`` (n_y, m, m) = K_mm^-1 - Sigma
+    = L^-T (I - A^-1) L^-1, for the variance only, is computed when first asked for (a sample
+    folded in every tick would otherwise update it for nothing: the controller uses the mean).
     Build with ``FITCGP.fit``; update with ``add_sample`` (returns a new object).
     """
 
@@ -221,10 +225,9 @@ class FITCGP:
     Ainv: np.ndarray
     c: np.ndarray
     alpha: np.ndarray
-    W: np.ndarray
 
     def __post_init__(self) -> None:
-        for name in ("Zm", "Linv", "Ainv", "c", "alpha", "W"):
+        for name in ("Zm", "Linv", "Ainv", "c", "alpha"):
             getattr(self, name).flags.writeable = False
         # Prediction constants: alpha scaled by sf2 and -1/(2 ell^2), 1/ell^2 per output.
         object.__setattr__(self, "_alpha_sf", self.hyp.sf2[:, None] * self.alpha)
@@ -260,7 +263,7 @@ class FITCGP:
             raise GPConditioningError("bad_hyperparameters")
         m, n_y = Zm.shape[0], hyp.n_y
         I = np.eye(m)
-        Linv, Ainv, W = (np.empty((n_y, m, m)) for _ in range(3))
+        Linv, Ainv = np.empty((n_y, m, m)), np.empty((n_y, m, m))
         c, alpha = np.empty((n_y, m)), np.empty((n_y, m))
         D2mm, D2nm = cdist(Zm, Zm, "sqeuclidean"), cdist(Z, Zm, "sqeuclidean")
         for a in range(n_y):
@@ -277,9 +280,8 @@ class FITCGP:
             c[a] = V @ (Y[:, a] / lam)
         for a in range(n_y):
             alpha[a] = Linv[a].T @ (Ainv[a] @ c[a])
-            W[a] = Linv[a].T @ (I - Ainv[a]) @ Linv[a]
-        gp = cls(Zm, hyp, float(jitter), float(max_cond), int(Z.shape[0]), Linv, Ainv, c, alpha, W)
-        if not all(np.all(np.isfinite(v)) for v in (Linv, Ainv, alpha, W)):
+        gp = cls(Zm, hyp, float(jitter), float(max_cond), int(Z.shape[0]), Linv, Ainv, c, alpha)
+        if not all(np.all(np.isfinite(v)) for v in (Linv, Ainv, alpha, gp.W)):
             raise GPConditioningError("non_finite_posterior")
         return gp
 
@@ -304,11 +306,17 @@ class FITCGP:
         den = lam + np.einsum("ai,ai->a", v, u)
         Ainv = self.Ainv - np.einsum("ai,aj->aij", u, u / den[:, None])
         c = self.c + v * (y / lam)[:, None]
-        s = np.einsum("aji,aj->ai", self.Linv, u)                          # Sigma k = L^-T A^-1 v
-        W = self.W + np.einsum("ai,aj->aij", s, s / den[:, None])
         alpha = np.einsum("aji,aj->ai", self.Linv, np.einsum("aij,aj->ai", Ainv, c))
         return FITCGP(self.Zm, self.hyp, self.jitter, self.max_cond, self.n + 1,
-                      self.Linv, Ainv, c, alpha, W)
+                      self.Linv, Ainv, c, alpha)
+
+    @functools.cached_property
+    def W(self) -> np.ndarray:
+        """K_mm^-1 - Sigma (n_y, m, m) = L^-T (I - A^-1) L^-1, the variance's matrix (read only)."""
+        I = np.eye(self.m)
+        W = np.array([self.Linv[a].T @ (I - self.Ainv[a]) @ self.Linv[a] for a in range(self.n_y)])
+        W.flags.writeable = False
+        return W
 
     # ---------------------------------------------------------------- prediction
     def _kernel_rows(self, Zs: np.ndarray) -> np.ndarray:
