@@ -131,8 +131,8 @@ class Integration:
     virtual_off: tuple
 
 
-LOCAL_GRIDS = 64  # static obstacles' local grids kept for the next replans (least recently used dropped)
-_local_grids: OrderedDict = OrderedDict()
+LOCAL_GRID_BYTES = 32 * 2**20  # static obstacles' local grids kept for the next replans, in bytes of
+_local_grids: OrderedDict = OrderedDict()  # data at most (the least recently used dropped first)
 
 
 def _local_grid(o, field: GuidanceField, h: float) -> Grid:
@@ -153,7 +153,7 @@ def _local_grid(o, field: GuidanceField, h: float) -> Grid:
         grid = Grid(np.array([b[0], b[2]]), h, data.reshape(*qshape, 5))
         grid.data.flags.writeable = False
         _local_grids[key] = grid
-        if len(_local_grids) > LOCAL_GRIDS:
+        while len(_local_grids) > 1 and sum(g.data.nbytes for g in _local_grids.values()) > LOCAL_GRID_BYTES:
             _local_grids.popitem(last=False)
     else:
         _local_grids.move_to_end(key)

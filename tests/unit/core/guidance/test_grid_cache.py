@@ -22,3 +22,19 @@ def test_a_restamped_static_obstacle_finds_its_grid_and_a_moved_one_does_not():
     assert moved.grid.obstacles[0] is not first.grid.obstacles[0] and moved.grid.obstacles[1] is first.grid.obstacles[1]
     assert not np.array_equal(moved.grid.obstacles[0].origin, first.grid.obstacles[0].origin)
     assert not first.grid.obstacles[0].data.flags.writeable                            # shared: read only
+
+
+def test_the_grid_cache_keeps_within_its_byte_budget(monkeypatch):
+    """Obstacles beyond the budget push the least recently used grids out; the newest stays."""
+    import vflpcd.core.guidance.grid as grid
+
+    planner = GuidancePlanner(ReferencePath.line([0.0, 0.0], [60.0, 0.0]), default_guidance(), 6.0, 3.0, 1.0, 0.05)
+    one = planner.prepare(0.0, [_static("cone0", Circle(0.3), 10.0, -3.0, 0.0)]).grid.obstacles[0].data.nbytes
+    monkeypatch.setattr(grid, "LOCAL_GRID_BYTES", 3 * one)
+    monkeypatch.setattr(grid, "_local_grids", type(grid._local_grids)())
+    for i in range(8):
+        planner.prepare(0.0, [_static(f"cone{i}", Circle(0.3), 5.0 + 5.0 * i, -3.0, 0.0)])
+        assert sum(g.data.nbytes for g in grid._local_grids.values()) <= 3 * one
+    assert len(grid._local_grids) == 3
+    last = planner.prepare(0.0, [_static("cone7", Circle(0.3), 40.0, -3.0, 1.0)]).grid.obstacles[0]
+    assert last is list(grid._local_grids.values())[-1]
