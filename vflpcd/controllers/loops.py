@@ -2,12 +2,13 @@
 
 Core stays pure (numpy and scipy only, no files): it writes a loop as plain Python
 (``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.path_kernel.nearest_segment``,
-``vflpcd.core.guidance.active_set_kernel.solve_loop``, ``vflpcd.core.guidance.integrate_kernel.step_loop``)
-and takes the compiled function as an argument. This module compiles each once per process, with
-numba's on-disk cache (beside the source, or numba's user-wide cache where that is read-only, or
-``$NUMBA_CACHE_DIR``; the systemd unit sets it), so a later process loads it in milliseconds;
-with no writable place it compiles in memory at every start. Without numba ``ebrhrl_loop()``,
-``path_loop()``, ``active_set_loop()`` and ``integrate_loop()`` return None and their users run their numpy paths.
+and the guidance's ``active_set_kernel.solve_loop``, ``integrate_kernel.step_loop`` and
+``half_plane_kernel.half_planes_loop``) and takes the compiled function as an argument. This
+module compiles each once per process, with numba's on-disk cache (beside the source, or numba's
+user-wide cache where that is read-only, or ``$NUMBA_CACHE_DIR``; the systemd unit sets it), so a
+later process loads it in milliseconds; with no writable place it compiles in memory at every
+start. Without numba every ``*_loop()`` and ``guidance_loops()`` return None and their users run
+their numpy paths (the guidance's steps run their loop interpreted).
 """
 
 from __future__ import annotations
