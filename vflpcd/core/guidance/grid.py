@@ -160,6 +160,11 @@ def _local_grid(o, field: GuidanceField, h: float) -> Grid:
     return grid
 
 
+def forget_local_grids() -> None:
+    """Drop the kept local grids (``_local_grid``): the next field grid computes every one again."""
+    _local_grids.clear()
+
+
 def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: float, beta: float,
               epsilon: float, max_steps: int, t0: float = 0.0, speed: float = 1.0,
               heading: np.ndarray | None = None, step_times: np.ndarray | None = None, loop=None) -> Integration:
