@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sim.metrics import summarize
+from vflpcd.core.guidance.grid import forget_local_grids
 from vflpcd.core.obstacle_world import ObstacleWorld
 from sim.plants import make_plant
 from vflpcd.config.scenarios import Scenario
@@ -90,6 +91,7 @@ def run_closed_loop(scenario: Scenario, controller: ControllerBase, seed: int = 
     record with its metrics."""
     plant = make_plant(scenario, seed)
     world = ObstacleWorld(scenario.obstacles)
+    forget_local_grids()        # each run starts with no obstacle grid kept, as a daemon's workers do
     controller.reset()
     dt = scenario.control_period
     if supervised and guard is None:
