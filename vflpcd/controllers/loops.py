@@ -70,25 +70,26 @@ def guidance_loops():
     """The guidance planner's loops compiled and loaded (``GuidanceLoops``), or None without numba."""
     from vflpcd.core.guidance.planner import GuidanceLoops
 
-    if active_set_loop() is None:
+    active_set = active_set_loop()
+    if active_set is None:
         return None
-    return GuidanceLoops(active_set=active_set_loop(), steps=integrate_loop(), half_planes=half_planes_loop())
+    return GuidanceLoops(active_set=active_set, steps=integrate_loop(), half_planes=half_planes_loop())
 
 
 @lru_cache(maxsize=1)
 def _scalars() -> bool:
     """Register the scalar functions that the guidance's loops call (``primitives``',
-    ``integrate_kernel.step_time`` and ``active_set_kernel.dual_step``) with numba, so that they
-    compile with the loops; False without numba."""
+    ``integrate_kernel.step_time`` and ``active_set_kernel``'s ``dual_step``, ``half_plane_gap``,
+    ``normal_dot``) with numba, so that they compile with the loops; False without numba."""
     try:
         from numba.extending import register_jitable
     except ImportError:
         return False
-    from vflpcd.core.guidance.active_set_kernel import dual_step
+    from vflpcd.core.guidance.active_set_kernel import dual_step, half_plane_gap, normal_dot
     from vflpcd.core.guidance.integrate_kernel import step_time
-    from vflpcd.core.guidance.primitives import cup_at, guiding_at, superellipse_at
+    from vflpcd.core.guidance.primitives import cup_at, guiding_at, row_centre, superellipse_at
 
-    for fn in (superellipse_at, step_time, cup_at, guiding_at, dual_step):
+    for fn in (superellipse_at, row_centre, step_time, cup_at, guiding_at, dual_step, half_plane_gap, normal_dot):
         register_jitable(fn)
     return True
 

@@ -25,7 +25,6 @@ previous model unchanged (the last good GP is kept).
 from __future__ import annotations
 
 import functools
-
 import logging
 from dataclasses import dataclass
 

@@ -102,13 +102,9 @@ def solve_loop(low0, f0, n, b, constrained, active, x, rounds, penalty, violatio
         if not dual:                 # restoring: every violated half-plane made active
             added = False
             for k in range(K):
-                if constrained[k] and not active[k]:
-                    g = -b[k]
-                    for j in range(d):
-                        g += n[k, j] * xa[k * d + j]
-                    if g < -violation:
-                        active[k] = True
-                        added = True
+                if constrained[k] and not active[k] and half_plane_gap(n, b, k, xa) < -violation:
+                    active[k] = True
+                    added = True
             x[:] = xa
             if not added:
                 return 0
@@ -116,21 +112,15 @@ def solve_loop(low0, f0, n, b, constrained, active, x, rounds, penalty, violatio
         if p < 0:
             released = False         # a warm start's half-planes held from outside
             for k in range(K):
-                if active[k]:
-                    g = -b[k]
-                    for j in range(d):
-                        g += n[k, j] * xa[k * d + j]
-                    if g > release:
-                        active[k] = False
-                        released = True
+                if active[k] and half_plane_gap(n, b, k, xa) > release:
+                    active[k] = False
+                    released = True
             if released:
                 continue
             worst = -violation
             for k in range(K):
                 if constrained[k] and not active[k]:
-                    g = -b[k]
-                    for j in range(d):
-                        g += n[k, j] * xa[k * d + j]
+                    g = half_plane_gap(n, b, k, xa)
                     if g < worst:
                         worst, p = g, k
             if p < 0:
@@ -150,26 +140,38 @@ def solve_loop(low0, f0, n, b, constrained, active, x, rounds, penalty, violatio
             z[i] = s / low[0, i]
         for i in range(N):
             x[i] = xa[i] + force * z[i]
-        gap_p, reach_p = -b[p], 0.0
-        for j in range(d):
-            gap_p += n[p, j] * x[p * d + j]
-            reach_p += n[p, j] * z[p * d + j]
-        full = -gap_p / reach_p if reach_p > 0.0 else math.inf
+        reach_p = normal_dot(n, p, z)
+        full = -half_plane_gap(n, b, p, x) / reach_p if reach_p > 0.0 else math.inf
         part, drop = math.inf, -1    # the first active multiplier to reach zero
         for k in range(K):
             if active[k]:
-                g, a = -b[k], 0.0
-                for j in range(d):
-                    g += n[k, j] * x[k * d + j]
-                    a += n[k, j] * z[k * d + j]
+                a = normal_dot(n, k, z)
                 if a > 0.0:
-                    t = max(-g / a, 0.0)
+                    t = max(-half_plane_gap(n, b, k, x) / a, 0.0)
                     if t < part:
                         part, drop = t, k
         p, force, restore = dual_step(full, part, p, drop, active, force)
         if restore:
             dual = False
     return 0
+
+
+def half_plane_gap(n, b, k, v):
+    """n_k' v_k - b_k: how far point k of v (N,) lies outside half-plane k (negative: inside)."""
+    d = n.shape[1]
+    g = -b[k]
+    for j in range(d):
+        g += n[k, j] * v[k * d + j]
+    return g
+
+
+def normal_dot(n, k, v):
+    """n_k' v_k for point k of v (N,)."""
+    d = n.shape[1]
+    a = 0.0
+    for j in range(d):
+        a += n[k, j] * v[k * d + j]
+    return a
 
 
 def dual_step(full, part, p, drop, active, force):

@@ -236,7 +236,6 @@ def _solve_numpy(low0: np.ndarray, f0: np.ndarray, n: np.ndarray, b: np.ndarray,
             open_ = np.where(constrained & ~active, gaps, np.inf)
             p = int(np.argmin(open_))
             if not open_[p] < -VIOLATION:
-                p = -1
                 x[:] = xa
                 return r + 1
             force = 0.0

@@ -140,8 +140,7 @@ def _local_grid(o, field: GuidanceField, h: float) -> Grid:
     computed once for o's numbers, the field's k_r, l1, l2 and h: a static obstacle is the same
     at the next replan (perception stamps it anew: the stamp is not in the key), and computing
     the grids was most of a replan's preparation."""
-    row = o.row()                       # its centre where the grid takes it (t = 0), not its stamp
-    key = (*o.center_at(0.0), *row[2:4], *row[5:], h, field.k_r, field.l1, field.l2)
+    key = (*o.center_at(0.0), *o.velocity, o.yaw, *o.axes, o.p, o.c, h, field.k_r, field.l1, field.l2)   # not the stamp
     grid = _local_grids.get(key)
     if grid is None:
         r = o.reach + h
@@ -199,7 +198,7 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
                        po[0], po[1], pd[0], pd[1], t0, speed], dtype=float)
     times = np.zeros(0) if step_times is None else np.asarray(step_times, float)
     aux = np.zeros(3, dtype=np.int64)
-    while True:
+    for _ in range(len(field.statics) + filled.size + 1):   # each resumption fills a block or decides a gamma_i
         status = step(state, xy, pg.data, filled, pgrid, statics, sdata, gammas, movers, virtuals, virtual_off,
                       params, times, aux)
         if status == FILL:
@@ -222,6 +221,8 @@ def integrate(field: GuidanceField, grid: FieldGrid, start: np.ndarray, x_end: f
                                 "no heading to inherit")
         else:
             break
+    else:
+        raise GuidanceError("the integration's steps kept asking for blocks or directions they had been given")
     k = int(state[6])
     return Integration(xy=xy[:k + 1].copy(), reached=status == REACHED, inherited=int(state[5]),
                        gammas=tuple(None if g == 0.0 else float(g) for g in gammas),

@@ -9,15 +9,15 @@ that point q with the unit gradient there as its normal, n_k' x >= n_k' q.
 
 ``rows`` (R, 12): per region its centre x, y at the stamp, velocity x, y, stamp, squared reach,
 cos and sin of the yaw, the two axes, p and c (``ObstacleImplicit``). ``n`` (K, 2) and ``b`` (K,)
-are written: n_k = 0, b_k = -inf where no region holds x_k. ``primitives.superellipse_at`` is
-compiled with it (``vflpcd.controllers.loops``); ``fairing.half_planes`` is the same on numpy.
+are written: n_k = 0, b_k = -inf where no region holds x_k. ``primitives``' ``superellipse_at`` and
+``row_centre`` are compiled with it (``vflpcd.controllers.loops``); ``fairing.half_planes`` is the same on numpy.
 """
 
 from __future__ import annotations
 
 import math
 
-from vflpcd.core.guidance.primitives import superellipse_at
+from vflpcd.core.guidance.primitives import row_centre, superellipse_at
 
 
 def half_planes_loop(x, t, rows, clear_level, newton, tol, n, b):
@@ -26,8 +26,7 @@ def half_planes_loop(x, t, rows, clear_level, newton, tol, n, b):
         n[k, 0], n[k, 1], b[k] = 0.0, 0.0, -math.inf
         worst = math.inf
         for i in range(rows.shape[0]):
-            cx = rows[i, 0] + rows[i, 2] * (t[k] - rows[i, 4])
-            cy = rows[i, 1] + rows[i, 3] * (t[k] - rows[i, 4])
+            cx, cy = row_centre(rows, i, t[k])
             if (x[k, 0] - cx) ** 2 + (x[k, 1] - cy) ** 2 >= rows[i, 5]:
                 continue
             cos, sin, ax0, ax1, p, c = rows[i, 6], rows[i, 7], rows[i, 8], rows[i, 9], rows[i, 10], rows[i, 11]

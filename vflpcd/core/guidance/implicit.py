@@ -33,7 +33,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from vflpcd.core.guidance.primitives import superellipse_at
 from vflpcd.core.path import ReferencePath
 
 E = np.array([[0.0, -1.0], [1.0, 0.0]])  # rotation by +90 deg
@@ -327,16 +326,6 @@ class ObstacleImplicit:
         sin of the yaw, the two axes, p and c."""
         return [self.center[0], self.center[1], self.velocity[0], self.velocity[1], self.stamp, self.reach ** 2,
                 self.Rz[0, 0], self.Rz[1, 0], self.axes[0], self.axes[1], self.p, self.c]
-
-    def value_at(self, x: float, y: float, t: float = 0.0) -> float:
-        """varphi at one planar point, in plain floats (the integration's hot path)."""
-        return self.value_grad_at(x, y, t)[0]
-
-    def value_grad_at(self, x: float, y: float, t: float = 0.0) -> tuple[float, float, float]:
-        """``value_grad`` at one planar point in plain floats: (varphi, d varphi / dx, d varphi / dy)."""
-        return superellipse_at(x, y, self.center[0] + self.velocity[0] * (t - self.stamp),
-                               self.center[1] + self.velocity[1] * (t - self.stamp), self.Rz[0, 0], self.Rz[1, 0],
-                               self.axes[0], self.axes[1], self.p)
 
     def value_grad_at_3d(self, x: float, y: float, z: float, t: float = 0.0) -> tuple[float, float, float, float]:
         """``value_grad`` at one 3-D point in plain floats: (varphi, its gradient's x, y, z)."""

@@ -32,15 +32,15 @@ Arrays, all float64 but ``filled`` (bool), ``virtual_off`` and ``aux`` (int64):
   direction x, y (progress = (xi - po) . pd), t0, speed; ``step_times`` (T,) (T = 0: none).
 
 Run interpreted (where numba is missing) it is the same arithmetic, number for number; compiled
-(``vflpcd.controllers.loops``) ``step_time`` and ``primitives``' ``cup_at``, ``guiding_at`` and
-``superellipse_at`` are compiled with it.
+(``vflpcd.controllers.loops``) ``step_time`` and ``primitives``' ``cup_at``, ``guiding_at``,
+``row_centre`` and ``superellipse_at`` are compiled with it.
 """
 
 from __future__ import annotations
 
 import math
 
-from vflpcd.core.guidance.primitives import cup_at, guiding_at, superellipse_at
+from vflpcd.core.guidance.primitives import cup_at, guiding_at, row_centre, superellipse_at
 
 REACHED, OUT_OF_STEPS, FILL, LEFT_GRID, VANISHED, ENTERED = 0, 1, 2, 3, 4, 5
 
@@ -103,8 +103,7 @@ def step_loop(state, xy, pdata, filled, pgrid, statics, sdata, gammas, movers, v
         if movers.shape[0] > 0:
             t = step_time(k, t0, beta, speed, step_times)
             for m in range(movers.shape[0]):
-                cx = movers[m, 0] + movers[m, 2] * (t - movers[m, 4])
-                cy = movers[m, 1] + movers[m, 3] * (t - movers[m, 4])
+                cx, cy = row_centre(movers, m, t)
                 if (x - cx) ** 2 + (y - cy) ** 2 > movers[m, 5]:
                     continue
                 phi, gx, gy = superellipse_at(x, y, cx, cy, movers[m, 6], movers[m, 7], movers[m, 8], movers[m, 9],
@@ -124,8 +123,7 @@ def step_loop(state, xy, pdata, filled, pgrid, statics, sdata, gammas, movers, v
             r = (dx * dx + dy * dy) ** 0.5
             if r >= radius or r == 0.0:
                 continue
-            pcx = virtuals[n, 6] + virtuals[n, 8] * (0.0 - virtuals[n, 10])
-            pcy = virtuals[n, 7] + virtuals[n, 9] * (0.0 - virtuals[n, 10])
+            pcx, pcy = row_centre(virtuals[:, 6:], n, 0.0)
             parent = superellipse_at(x, y, pcx, pcy, virtuals[n, 12], virtuals[n, 13], virtuals[n, 14], virtuals[n, 15],
                                      virtuals[n, 16])[0]
             if progress >= virtuals[n, 5] or parent <= 0.0:

@@ -52,7 +52,8 @@ def guiding_at(gamma: float, k: float, phi: float, gx: float, gy: float) -> tupl
 
 def superellipse_at(x, y, cx, cy, c, s, ax0, ax1, p):
     """(varphi, d varphi / dx, d varphi / dy) of the superellipse centred at (cx, cy), yaw (cos c,
-    sin s), axes ax0, ax1, exponent p, at (x, y): ``ObstacleImplicit.value_grad_at``."""
+    sin s), axes ax0, ax1, exponent p, at (x, y): ``ObstacleImplicit.value_grad`` at one planar
+    point in plain floats (the compiled loops' form; ``row_centre`` places a row's centre)."""
     zx = ((x - cx) * c + (y - cy) * s) / ax0
     zy = (-(x - cx) * s + (y - cy) * c) / ax1
     ax, ay = abs(zx), abs(zy)
@@ -61,6 +62,11 @@ def superellipse_at(x, y, cx, cy, c, s, ax0, ax1, p):
     hx = coef * math.copysign(ax ** (p - 1.0), zx) / ax0 if zx != 0.0 else 0.0
     hy = coef * math.copysign(ay ** (p - 1.0), zy) / ax1 if zy != 0.0 else 0.0
     return S ** (1.0 / p) - 1.0, hx * c - hy * s, hx * s + hy * c
+
+
+def row_centre(rows, i: int, t: float) -> tuple[float, float]:
+    """The centre at time t of obstacle i of ``rows`` (each an ``ObstacleImplicit.row``)."""
+    return rows[i, 0] + rows[i, 2] * (t - rows[i, 4]), rows[i, 1] + rows[i, 3] * (t - rows[i, 4])
 
 
 def guiding(gamma: float, k: float, phi: np.ndarray, grad: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ import pytest
 
 from vflpcd.core.guidance.field import ActualTerm, GuidanceField, VirtualTerm
 from vflpcd.core.guidance.implicit import E, CirclePath, GraphPath, GuidanceError, LinePath, ObstacleImplicit
-from vflpcd.core.guidance.primitives import bump, cup_at, s_virtual, unit
+from vflpcd.core.guidance.primitives import bump, cup_at, row_centre, s_virtual, superellipse_at, unit
 from vflpcd.core.shapes import Box, Box3, Circle, Cylinder, Ellipse, Ellipsoid, Sphere
 
 L1, L2 = 0.05, 0.05
@@ -97,13 +97,15 @@ def test_moving_obstacle_translates_with_time():
 
 @pytest.mark.parametrize("p", [2.0, 3.5, 6.0])
 def test_the_plain_float_value_gradient_and_bump_are_the_array_ones(p):
-    """value_grad_at and cup_at (the integration's per-step forms) against value_grad and bump, on
-    a rotated, moving superellipse, to rounding."""
+    """superellipse_at at an obstacle's row and cup_at (the compiled loops' per-step forms) against
+    value_grad and bump, on a rotated, moving superellipse, to rounding."""
     o = ObstacleImplicit("o", np.array([1.0, 2.0]), 0.7, np.array([0.3, -0.2]), 0.5, np.array([2.0, 1.2]), p, None, -0.4)
     rng = np.random.default_rng(3)
     for x, y, t in zip(rng.normal(1.0, 2.0, 300), rng.normal(2.0, 2.0, 300), rng.uniform(0.0, 3.0, 300)):
         v, g = o.value_grad(np.array([[x, y]]), t)
-        np.testing.assert_allclose(o.value_grad_at(x, y, t), [v[0], g[0, 0], g[0, 1]], rtol=1e-13, atol=1e-13)
+        row = np.array([o.row()])
+        at = superellipse_at(x, y, *row_centre(row, 0, t), *row[0, 6:11])
+        np.testing.assert_allclose(at, [v[0], g[0, 0], g[0, 1]], rtol=1e-13, atol=1e-13)
         assert abs(cup_at(v[0], o.c, 0.3, 0.2) - bump(v, o.c, 0.3, 0.2)[0][0]) <= 1e-15
 
 
