@@ -16,6 +16,13 @@ with the GP input [v_x, v_y, omega, u], and with the paper's [v_x, v_y, omega, r
 paper's structure, where B_d corrects v_x, v_y, omega only). The GP works in
 lifted coordinates scaled by their spread on the first 100 m (a linear change of variables, so
 that one isotropic length scale fits inputs of different units).
+
+Steering response: from straight driving at speeds of 1.5 to 15 m/s, the steering angle held at
++-delta for 2 s (a_x = 0), the yaw rate that the model predicts (open loop, the horizon's own
+prediction) against the plant's (nominal parameters). The model is linear in the input
+(Upsilon_{k+1} = A Upsilon_k + B u_k), so its steady yaw-rate gain per radian of steering is the
+same at every speed, while the car's grows with speed (kinematic at low speed, understeering at
+high speed): the ratio says where the horizon's model over- or under-estimates the steering.
 """
 
 from __future__ import annotations
@@ -34,6 +41,8 @@ from vflpcd.config.scenarios import load_scenario
 from vflpcd.core.dynamics.compensation import KoopmanCompensation, OnlineCompensator
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
 from vflpcd.core.dynamics.sparse_gp import FITCGP, SEHyper, refit
+from vflpcd.config.vehicles import BicycleConfig
+from sim.plants.dynamic_bicycle import DynamicBicycle
 
 SHIPPED = load_params("ground")      # the GP that vflpc_ml ships with ([compensation] of vflpc.toml)
 
@@ -127,6 +136,28 @@ def compensation_demo(model: LiftedLinearModel, seed: int = 0, learn_m: float = 
             "one_step_rmse": one, f"open_loop_{horizon_s:g}s_rmse": multi}
 
 
+def steering_response(model: LiftedLinearModel, speeds=(1.5, 3.0, 6.0, 10.0, 15.0), delta: float = 0.05,
+                      seconds: float = 2.0, params: str = "nominal") -> list[dict]:
+    """Yaw rate after ``seconds`` of steering held at +-delta from straight driving at each speed
+    (a_x = 0): the plant's (``params``) and the model's open-loop prediction (module docstring)."""
+    cfg = BicycleConfig.load(params)
+    steps = int(round(seconds / model.dt))
+    om = model.state_names.index("omega")
+    rows = []
+    for v in speeds:
+        row = {"speed": float(v)}
+        for sign, key in ((1.0, "left"), (-1.0, "right")):
+            u = np.array([0.0, sign * delta])
+            plant = DynamicBicycle(cfg, [0.0, 0.0, 0.0, v, 0.0, 0.0])
+            for _ in range(steps):
+                plant.step(u, model.dt)
+            pred = model.rollout(np.array([0.0, 0.0, 0.0, v, 0.0, 0.0]), np.tile(u, (steps, 1)))
+            row[f"plant_{key}"], row[f"model_{key}"] = float(plant.state[5]), float(pred[-1, om])
+            row[f"ratio_{key}"] = row[f"model_{key}"] / row[f"plant_{key}"]
+        rows.append(row)
+    return rows
+
+
 def bench_dynamics(model: LiftedLinearModel, out: Path, seed: int = 0) -> dict:
     t = timings(model, seed)
     print(f"encoder + lift, one state:               {t['lift_s'] * 1e6:8.1f} us")
@@ -145,8 +176,16 @@ def bench_dynamics(model: LiftedLinearModel, out: Path, seed: int = 0) -> dict:
                 print(f"  {label:<20}" + "".join(f"{rows[label][c]:>11.5f}" for c in chans))
             ratio = {c: rows["nominal"][c] / max(rows["compensated"][c], 1e-15) for c in chans}
             print(f"  {'nominal/compensated':<20}" + "".join(f"{ratio[c]:>11.2f}" for c in chans))
+    steer = steering_response(model)
+    print("\nsteering response: yaw rate (rad/s) after 2 s of delta_f = +-0.05 rad from straight driving "
+          "(a_x = 0), plant (nominal) and model")
+    print(f"{'v m/s':>6}" + "".join(f"{h:>11}" for h in ("plant L", "model L", "model/pl", "plant R", "model R",
+                                                          "model/pl")))
+    for r in steer:
+        print(f"{r['speed']:>6.1f}" + "".join(f"{r[k]:>11.3f}" for k in ("plant_left", "model_left", "ratio_left",
+                                                                           "plant_right", "model_right", "ratio_right")))
     out.mkdir(parents=True, exist_ok=True)
-    doc = {"timings": t, "compensation": demos}
+    doc = {"timings": t, "compensation": demos, "steering_response": steer}
     (out / "bench_dynamics.json").write_text(json.dumps(doc, indent=2) + "\n")
     print(f"wrote {out / 'bench_dynamics.json'}")
     return doc

@@ -95,9 +95,11 @@ def test_bench_dynamics_measures_and_compensation_halves_the_one_step_error(tmp_
     proc = subprocess.run(VFLPCD + ["bench", "dynamics", "--out", str(tmp_path)], capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0, proc.stderr
-    for label in ("encoder + lift", "GP mean + Jacobian", "GP full refit", "one-step RMSE", "1-s open-loop RMSE"):
+    for label in ("encoder + lift", "GP mean + Jacobian", "GP full refit", "one-step RMSE", "1-s open-loop RMSE",
+                  "steering response"):
         assert label in proc.stdout
     doc = json.loads((tmp_path / "bench_dynamics.json").read_text())
+    assert [r["speed"] for r in doc["steering_response"]] == [1.5, 3.0, 6.0, 10.0, 15.0]
     from vflpcd.controllers.vflpc import load_params
 
     shipped = load_params("ground")                         # the bench measures the GP that vflpc_ml ships
