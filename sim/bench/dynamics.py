@@ -96,13 +96,15 @@ def compensation_demo(model: LiftedLinearModel, seed: int = 0, learn_m: float = 
     # scaled lifted coordinates for the GP: U = D U~, u = E u~
     d = np.where(np.std(U0[learn], axis=0) > 1e-9, np.std(U0[learn], axis=0), 1.0)
     e = np.where(np.std(u[:-1][learn], axis=0) > 1e-9, np.std(u[:-1][learn], axis=0), 1.0)
-    A_s = model.A * d[None, :] / d[:, None]
-    B_s = model.B * e[None, :] / d[:, None]
+    A_sc = model.A * d[None, :] / d[:, None]
+    B_sc = model.B * e[None, :] / d[:, None]
+    j = model.schedule_index                  # a scheduled input matrix: s B_s u = (d_j s~) B_s (e u~)
+    scheduled = (model.B_s * e[None, :] / d[:, None] * d[j], j) if model.scheduled else ()
     vel = [names.index(v) for v in SHIPPED.gp_channels]
     varying = [i for i in range(n_x, model.n_K) if np.ptp(U0[learn, i]) > 1e-9]  # encoder outputs, not the constant
     B_d = np.zeros((model.n_K, len(vel)))
     B_d[vel, range(len(vel))] = 1.0
-    comp = KoopmanCompensation(A_s, B_s, B_d, vel + (varying if with_encoder else []))
+    comp = KoopmanCompensation(A_sc, B_sc, B_d, vel + (varying if with_encoder else []), *scheduled)
     targets = comp.residual_target(U0[learn] / d, u[:-1][learn] / e, U1[learn] / d)
     n_z = comp.n_z
     hyp0 = SEHyper(sf2=np.maximum(np.var(targets.d, axis=0), 1e-8), ell=np.full(len(vel), np.sqrt(n_z)),

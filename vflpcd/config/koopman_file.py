@@ -7,6 +7,8 @@ key                shape               meaning
 =================  ==================  ==================================================
 A                  (n_K, n_K)          physical latent state matrix (last row e_{n_K})
 B                  (n_K, n_u)          physical latent input matrix (last row 0)
+B_s                (n_K, n_u)          optional: the input matrix's slope in the schedule channel
+                                       (``lifted`` module: U' = A U + (B + s B_s) u; last row 0)
 x_mean, x_std      (n_x,)              state normalisation (window frame, SI units)
 u_mean, u_std      (n_u,)              control normalisation
 enc_W1 .. enc_WL   (d_{i-1}, d_i)      encoder weights (x @ W + b convention)
@@ -21,7 +23,8 @@ metadata           () str              JSON object, below
 ``n_K`` (the lift dimension), ``n_x``, ``n_u``, ``n_encoder`` (n_e), ``encoder_layers``
 (L), ``hidden`` (list of hidden widths), ``fingerprint`` (sha256 of the training logs,
 ``vflpcd.training.datasets.fingerprint``), ``metrics`` (training / validation metrics, a JSON
-object) and free-form training settings (``training``).
+object) and free-form training settings (``training``); ``schedule``, the state channel s that
+scales B_s, is there exactly when B_s is.
 
 Every problem found by :func:`load_koopman` raises :class:`vflpcd.base.errors.ConfigError`
 naming the file and the key (``metadata.<field>`` for a metadata field).
@@ -60,6 +63,11 @@ def koopman_arrays(model: KoopmanModel) -> dict[str, np.ndarray]:
     meta.setdefault("metrics", {})
     out = {"A": model.A, "B": model.B, "x_mean": model.x_mean, "x_std": model.x_std,
            "u_mean": model.u_mean, "u_std": model.u_std}
+    if model.scheduled:
+        out["B_s"] = model.B_s
+        meta["schedule"] = model.schedule
+    else:
+        meta.pop("schedule", None)
     for i, (W, b) in enumerate(zip(model.enc_weights, model.enc_biases), start=1):
         out[f"enc_W{i}"] = W
         out[f"enc_b{i}"] = b
@@ -178,6 +186,18 @@ def load_koopman(path: str | Path, state_names: Sequence[str] | None = None,
             raise ConfigError(path, "A", "last row must keep the constant observable (e_last)")
         if np.max(np.abs(B[-1])) > _CONST_TOL:
             raise ConfigError(path, "B", "last row must be zero (the constant observable)")
+        schedule = meta.get("schedule")
+        if ("B_s" in npz.files) != (schedule is not None):
+            raise ConfigError(path, "B_s", "a scheduled input matrix needs both the array B_s and metadata.schedule")
+        scheduled = {}
+        if schedule is not None:
+            if schedule not in snames:
+                raise ConfigError(path, "metadata.schedule", f"expected one of the state names {list(snames)}, "
+                                  f"got {schedule!r}")
+            B_s = _array(npz, path, "B_s", (n_K, n_u))
+            if np.max(np.abs(B_s[-1])) > _CONST_TOL:
+                raise ConfigError(path, "B_s", "last row must be zero (the constant observable)")
+            scheduled = {"B_s": B_s, "schedule": schedule}
         stats = {k: _array(npz, path, k, (n,)) for k, n in
                  (("x_mean", n_x), ("x_std", n_x), ("u_mean", n_u), ("u_std", n_u))}
         for k in ("x_std", "u_std"):
@@ -194,7 +214,7 @@ def load_koopman(path: str | Path, state_names: Sequence[str] | None = None,
         if not float(dt) > 0.0:
             raise ConfigError(path, "dt", f"expected a positive sampling period in s, got {float(dt)}")
     model = KoopmanModel(A, B, enc_weights=Ws, enc_biases=bs, metadata=meta, state_names=snames,
-                         control_names=cnames, dt=float(dt), **stats)
+                         control_names=cnames, dt=float(dt), **stats, **scheduled)
     log.info("event=koopman_loaded path=%s n_K=%d n_x=%d n_u=%d fingerprint=%s", path, n_K, n_x, n_u,
              meta["fingerprint"][:12])
     return model

@@ -1,7 +1,8 @@
 """Core's loops compiled with numba (``njit``), for the controllers that run them.
 
 Core stays pure (numpy and scipy only, no files): it writes a loop as plain Python
-(``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.path_kernel.nearest_segment``,
+(``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.control.scheduled_kernel.problem_loop``,
+``vflpcd.core.path_kernel.nearest_segment``,
 and the guidance's ``active_set_kernel.solve_loop``, ``integrate_kernel.step_loop`` and
 ``half_plane_kernel.half_planes_loop``) and takes the compiled function as an argument. This
 module compiles each once per process, with numba's on-disk cache (beside the source, or numba's
@@ -25,6 +26,15 @@ def ebrhrl_loop():
     from vflpcd.core.control.ebrhrl_kernel import solve_loop
 
     return _compiled("ebrhrl", solve_loop, _warm_ebrhrl)
+
+
+@lru_cache(maxsize=1)
+def scheduled_problem_loop():
+    """``scheduled_kernel.problem_loop`` (the horizon of a model with a scheduled input matrix) compiled
+    and loaded (``_warm_scheduled``), or None without numba."""
+    from vflpcd.core.control.scheduled_kernel import problem_loop
+
+    return _compiled("scheduled_problem", problem_loop, _warm_scheduled)
 
 
 @lru_cache(maxsize=1)
@@ -121,6 +131,13 @@ def _warm_ebrhrl(loop) -> None:
     loop(z((1, 1, 1)), z((1, 1, 1)), z((1, 1)), z(1), z((1, 1, 1)), z((1, 1)), z((1, 1)), z((1, 1)), z((1, 1, 1)),
          1.0, z((1, 1, 1)), z((2, 1, 1)), z(1), z((1, 1)), z(1), z(1, np.int64), z((2, 1)), z((0, 2, 1)),
          z((0, 2, 1)), z(0), 1.0, 1.0, 1, 1e-8, 1e-2)
+
+
+def _warm_scheduled(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``ErrorModel._scheduled_problem`` passes."""
+    import numpy as np
+
+    loop(np.ones((2, 3)), np.eye(3), np.ones((3, 1)), np.zeros((3, 1)), 0, 1, -np.ones(1), np.ones(1))
 
 
 def _warm_path(loop) -> None:

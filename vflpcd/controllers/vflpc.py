@@ -15,7 +15,7 @@ from vflpcd.core.guidance.planner3d import GuidancePlanner3D
 from vflpcd.core.guidance.tighten import Body
 from vflpcd.config.params import vflpc_params
 from vflpcd.core.vflpc import VFLPC, VFLPCParams
-from vflpcd.controllers.loops import ebrhrl_loop, guidance_loops, path_loop
+from vflpcd.controllers.loops import ebrhrl_loop, guidance_loops, path_loop, scheduled_problem_loop
 from vflpcd.base.paths import config_dir
 from vflpcd.base.tomlread import load_table
 from vflpcd.config.vehicles import state_names
@@ -73,7 +73,8 @@ def compensator_for(model, params: VFLPCParams) -> OnlineCompensator:
     B_d = np.zeros((model.n_K, n_y))
     B_d[rows, range(n_y)] = 1.0
     z_index = rows + list(range(model.n_x, model.n_K - 1))
-    comp = KoopmanCompensation(model.A, model.B, B_d, z_index)
+    comp = KoopmanCompensation(model.A, model.B, B_d, z_index, *((model.B_s, model.schedule_index)
+                                                                 if model.scheduled else ()))
     hyp = SEHyper(ell=np.full(n_y, params.gp_ell), sf2=np.full(n_y, params.gp_sf2), sn2=np.full(n_y, params.gp_sn2))
     bounds = tuple((float(np.log(lo)), float(np.log(hi))) for lo, hi in params.gp_bounds)
     return OnlineCompensator(comp, hyp, nu=params.gp_nu, m_max=params.gp_m_max, n_max=params.gp_n_max, bounds=bounds)
@@ -98,7 +99,7 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
                  scenario.guidance.safety_margin, solver=solver,
                  compensator=compensator_for(model, params) if compensation else None, name=name,
                  state_names=state_names(scenario.platform), period=period, solve_loop=ebrhrl_loop(),
-                 path_loop=path_loop())
+                 path_loop=path_loop(), problem_loop=scheduled_problem_loop())
 
 
 def make_vflpc_ml(scenario, **options) -> VFLPC:

@@ -21,7 +21,11 @@ Lifted state Z_n(x) = [x_n, rho_e(x_n), 1] (n_K,), the last entry the constant o
 row fixed (A_n last row e_last, B_n last row 0); the trainable parameters are the encoder
 weights, A_n[:-1] (n_K - 1, n_K) and B_n[:-1] (n_K - 1, n_u). A_n[:n_x], B_n[:n_x] start from
 the least-squares (DMDc) fit of the normalised one-step pairs, A_n[enc, enc] = 0.9 I, the
-rest 0 -- so training starts from the DMDc model and improves on it.
+rest 0 -- so training starts from the DMDc model and improves on it. With ``--schedule s`` (a
+state channel) the input matrix depends on it, Z_{k+1} = A_n Z_k + (B_n + s_n,k B_s,n) u_n,k
+(``lifted`` module docstring), s_n,k = Z_k[s] the (predicted) normalised channel, B_s,n trainable
+from zero: a car's steering gain, which grows with its speed, needs it (``bench dynamics`` prints
+the steering response of both).
 
 Loss (exact), for a batch of M windows (x_n,0..H, u_n,0..H-1), Z_hat_0 = Z_n(x_n,0) and
 Z_hat_k = A_n Z_hat_{k-1} + B_n u_n,k-1 (k = 1..H, open loop from the first state only):
@@ -55,7 +59,7 @@ Export: the float32 weights become float64 arrays, (A_n, B_n) become the physica
 time, the ``open_loop_rmse`` tables of the validation logs at 0.5/1/2 s, stride 10, for the
 Koopman model and the DMDc and EDMDc baselines fitted to the same training logs).
 
-Command line (``main``): ``train koopman --data PATH_OR_FOLDER... [--carsim] --val NAMES...
+Command line (``main``): ``train koopman --data PATH_OR_FOLDER... [--carsim] [--schedule STATE] --val NAMES...
 --n-lift N --horizon-s H --epochs E --seed S --out FILE``; also ``python -m
 vflpcd.training.train_koopman ...``.
 """
@@ -80,7 +84,7 @@ import numpy as np
 
 from vflpcd.config.koopman_file import save_koopman
 from vflpcd.core.dynamics.koopman import ACTIVATION, KoopmanModel
-from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_physical, to_window_frame
+from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_physical, to_physical_scheduled, to_window_frame
 from vflpcd.base.errors import ConfigError
 from vflpcd.training.datasets import Log, fingerprint, load_carsim, load_logs, split_by_log
 from vflpcd.training.dmdc import check_logs, robust_std
@@ -111,7 +115,8 @@ class TrainConfig:
     starts; hidden: encoder hidden widths; windows_per_epoch: windows drawn per epoch; batch:
     windows per step; lr: Adam learning rate; lambda_lin, lambda_w: loss weights (module
     docstring); patience: epochs without validation improvement before stopping; threads:
-    torch CPU threads."""
+    torch CPU threads; schedule: the state channel that scales a second input matrix (B + s B_s,
+    ``vflpcd.core.dynamics.lifted``), None for the linear model."""
 
     n_lift: int
     horizon_s: float = 2.0
@@ -127,6 +132,7 @@ class TrainConfig:
     lambda_w: float = 1e-6
     patience: int = 30
     threads: int = 1
+    schedule: str | None = None
 
     def check(self) -> None:
         for name in ("epochs", "stride", "val_stride", "windows_per_epoch", "batch", "patience", "threads"):
@@ -178,7 +184,7 @@ def _net_class():
     class KoopmanNet(nn.Module):
         """Encoder + latent (A_n, B_n) in normalised coordinates (module docstring)."""
 
-        def __init__(self, n_x: int, n_u: int, n_K: int, hidden: Sequence[int]) -> None:
+        def __init__(self, n_x: int, n_u: int, n_K: int, hidden: Sequence[int], schedule: int | None) -> None:
             super().__init__()
             n_e = n_K - n_x - 1
             if n_e < 1:
@@ -192,6 +198,8 @@ def _net_class():
             self.encoder = nn.Sequential(*layers)
             self.A_top = nn.Parameter(torch.zeros(n_K - 1, n_K))
             self.B_top = nn.Parameter(torch.zeros(n_K - 1, n_u))
+            self.schedule = schedule          # column of Z_n whose value scales B_s (None: linear)
+            self.B_s_top = nn.Parameter(torch.zeros(n_K - 1, n_u)) if schedule is not None else None
 
         def linears(self):
             return [m for m in self.encoder if isinstance(m, nn.Linear)]
@@ -206,8 +214,11 @@ def _net_class():
             Z = self.lift(x_n0)
             out = [Z]
             At, Bt = self.A_top.t(), self.B_top.t()
+            j = self.schedule
             for k in range(u_n.shape[1]):
                 nxt = Z @ At + u_n[:, k] @ Bt
+                if j is not None:                   # (B_n + s_n B_s_n) u_n
+                    nxt = nxt + Z[:, j:j + 1] * (u_n[:, k] @ self.B_s_top.t())
                 Z = torch.cat([nxt, Z[:, -1:]], dim=-1)
                 out.append(Z)
             return torch.stack(out, dim=1)
@@ -215,10 +226,11 @@ def _net_class():
     return KoopmanNet
 
 
-def build_network(n_x: int, n_u: int, n_lift: int, hidden: Sequence[int] = (64, 64)):
+def build_network(n_x: int, n_u: int, n_lift: int, hidden: Sequence[int] = (64, 64), schedule: int | None = None):
     """A fresh torch network (float32, default PyTorch initialisation of the encoder, zero
-    A_n / B_n). Seed torch before calling for a reproducible initialisation."""
-    return _net_class()(n_x, n_u, n_lift, tuple(hidden))
+    A_n / B_n, and zero B_s_n when ``schedule``, a state column, is given). Seed torch before
+    calling for a reproducible initialisation."""
+    return _net_class()(n_x, n_u, n_lift, tuple(hidden), schedule)
 
 
 def export_model(net, stats: dict, state_names: Sequence[str], control_names: Sequence[str], dt: float,
@@ -233,12 +245,21 @@ def export_model(net, stats: dict, state_names: Sequence[str], control_names: Se
         A_n[:-1] = net.A_top.detach().cpu().double().numpy()
         A_n[-1, -1] = 1.0
         B_n[:-1] = net.B_top.detach().cpu().double().numpy()
+        B_s_n = np.zeros((n_K, net.n_u))
+        if net.schedule is not None:
+            B_s_n[:-1] = net.B_s_top.detach().cpu().double().numpy()
         Ws = [m.weight.detach().cpu().double().numpy().T.copy() for m in net.linears()]
         bs = [m.bias.detach().cpu().double().numpy().copy() for m in net.linears()]
-    A, B = to_physical(A_n, B_n, stats["x_mean"], stats["x_std"], stats["u_mean"], stats["u_std"])
+    scheduled = {}
+    if net.schedule is None:
+        A, B = to_physical(A_n, B_n, stats["x_mean"], stats["x_std"], stats["u_mean"], stats["u_std"])
+    else:
+        A, B, B_s = to_physical_scheduled(A_n, B_n, B_s_n, net.schedule, stats["x_mean"], stats["x_std"],
+                                          stats["u_mean"], stats["u_std"])
+        scheduled = {"B_s": B_s, "schedule": state_names[net.schedule]}
     return KoopmanModel(A, B, enc_weights=Ws, enc_biases=bs, metadata=metadata or {}, state_names=state_names,
                         control_names=control_names, dt=dt, x_mean=stats["x_mean"], x_std=stats["x_std"],
-                        u_mean=stats["u_mean"], u_std=stats["u_std"])
+                        u_mean=stats["u_mean"], u_std=stats["u_std"], **scheduled)
 
 
 def network_rollout(net, stats: dict, x0: np.ndarray, controls: np.ndarray) -> np.ndarray:
@@ -330,7 +351,10 @@ def train_koopman(train_logs: Sequence[Log], val_logs: Sequence[Log], cfg: Train
     Xva_n = (Xva - stats["x_mean"]) / stats["x_std"]
     Uva_n = (Uva - stats["u_mean"]) / stats["u_std"]
 
-    net = build_network(n_x, n_u, cfg.n_lift, cfg.hidden)
+    if cfg.schedule is not None and cfg.schedule not in state_names:
+        raise ValueError(f"the schedule channel {cfg.schedule!r} is not a state of the logs ({', '.join(state_names)})")
+    net = build_network(n_x, n_u, cfg.n_lift, cfg.hidden,
+                        state_names.index(cfg.schedule) if cfg.schedule is not None else None)
     F, c, Gm = _dmdc_init(Xtr_n, Utr_n, n_x, n_u)
     with torch.no_grad():
         A0 = np.zeros((cfg.n_lift - 1, cfg.n_lift))
@@ -471,6 +495,9 @@ def _parser() -> _Parser:
     p.add_argument("--patience", type=int, default=30, help="early-stopping patience, epochs (default 30)")
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--data-command", default=None, help="the command that produced --data (kept in the manifest)")
+    p.add_argument("--schedule", default=None, metavar="STATE",
+                   help="a state channel that scales a second input matrix, B + s B_s (e.g. vx: a car's steering "
+                        "gain grows with its speed); default: the linear model")
     p.add_argument("--no-compare", action="store_true", help="skip the DMDc/EDMDc baselines in the manifest")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     return p
@@ -499,7 +526,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = TrainConfig(n_lift=args.n_lift, horizon_s=args.horizon_s, epochs=args.epochs, seed=args.seed,
                           stride=args.stride, hidden=tuple(args.hidden), windows_per_epoch=args.windows_per_epoch,
                           batch=args.batch, lr=args.lr, lambda_lin=args.lambda_lin, patience=args.patience,
-                          threads=args.threads)
+                          threads=args.threads, schedule=args.schedule)
         cfg.check()
     except ValueError as exc:
         return fail(str(exc))

@@ -7,6 +7,7 @@ from sim.bench.dynamics import steering_response
 from vflpcd.config.koopman_file import load_koopman
 from vflpcd.base.paths import config_dir
 from vflpcd.config.vehicles import BicycleConfig
+from vflpcd.core.dynamics.koopman import KoopmanModel
 
 
 @pytest.fixture(scope="module")
@@ -29,5 +30,14 @@ def test_rows_are_the_plant_and_the_models_open_loop_prediction(model):
     assert rows[0]["plant_left"] < rows[1]["plant_left"] < rows[2]["plant_left"]
     p = BicycleConfig.load("nominal").params
     assert rows[0]["plant_left"] == pytest.approx(3.0 * 0.05 / (p.lf + p.lr), rel=0.1)
-    # ... while a model linear in the input keeps nearly one gain: its ratio falls with speed
-    assert rows[0]["ratio_left"] > rows[1]["ratio_left"] > rows[2]["ratio_left"]
+    # ... and so does the shipped model's, whose input matrix is scheduled on the speed
+    assert model.scheduled and model.schedule == "vx"
+    for r in rows:
+        assert 0.85 < r["ratio_left"] < 1.15 and 0.85 < r["ratio_right"] < 1.15
+    # the same model with its input matrix frozen at 6 m/s keeps one gain: its ratio falls with speed
+    frozen = KoopmanModel(model.A, model.B + 6.0 * model.B_s, enc_weights=model.enc_weights,
+                          enc_biases=model.enc_biases, state_names=model.state_names,
+                          control_names=model.control_names, dt=model.dt, x_mean=model.x_mean, x_std=model.x_std,
+                          u_mean=model.u_mean, u_std=model.u_std)
+    linear = steering_response(frozen, speeds=(3.0, 6.0, 12.0), delta=0.05, seconds=1.0)
+    assert linear[0]["ratio_left"] > 1.3 > 0.8 > linear[2]["ratio_left"]

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_physical
+from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_physical, to_physical_scheduled
 from vflpcd.training.datasets import Log
 from vflpcd.training.dmdc import DictionaryModel, fit_dmdc, fit_edmdc
 from vflpcd.training.evaluate import open_loop_rmse
@@ -90,6 +90,32 @@ def test_to_physical_matches_the_normalised_model():
     U1 = A @ np.concatenate([x, phi, [1.0]]) + B @ u
     np.testing.assert_allclose(U1[:n_x], Zn1[:n_x] * xs + xm, atol=1e-12)
     np.testing.assert_allclose(U1[n_x:], Zn1[n_x:], atol=1e-12)
+
+
+def test_scheduled_to_physical_matches_the_normalised_bilinear_model():
+    rng = np.random.default_rng(1)
+    n_x, n_phi, n_u, j = 3, 2, 2, 1
+    n_K = n_x + n_phi + 1
+    A_n = rng.normal(size=(n_K, n_K)) * 0.3
+    A_n[-1] = 0.0
+    A_n[-1, -1] = 1.0
+    B_n, B_s_n = rng.normal(size=(n_K, n_u)), rng.normal(size=(n_K, n_u))
+    B_n[-1] = B_s_n[-1] = 0.0
+    xm, xs, um, us = rng.normal(size=n_x), rng.uniform(0.5, 2, n_x), rng.normal(size=n_u), rng.uniform(0.5, 2, n_u)
+    A, B, B_s = to_physical_scheduled(A_n, B_n, B_s_n, j, xm, xs, um, us)
+    for _ in range(3):
+        x, phi, u = rng.normal(size=n_x), rng.normal(size=n_phi), rng.normal(size=n_u)
+        Zn = np.concatenate([(x - xm) / xs, phi, [1.0]])
+        u_n = (u - um) / us
+        Zn1 = A_n @ Zn + (B_n + Zn[j] * B_s_n) @ u_n
+        U = np.concatenate([x, phi, [1.0]])
+        U1 = A @ U + (B + U[j] * B_s) @ u
+        np.testing.assert_allclose(U1[:n_x], Zn1[:n_x] * xs + xm, atol=1e-12)
+        np.testing.assert_allclose(U1[n_x:], Zn1[n_x:], atol=1e-12)
+    # without a slope it is the linear conversion
+    A0, B0, Bs0 = to_physical_scheduled(A_n, B_n, np.zeros_like(B_n), j, xm, xs, um, us)
+    np.testing.assert_allclose(np.hstack([A0, B0]), np.hstack(to_physical(A_n, B_n, xm, xs, um, us)), atol=1e-14)
+    assert not Bs0.any()
 
 
 def bicycle_logs(n_logs=3, n=600, seed=0):

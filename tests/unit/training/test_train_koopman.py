@@ -1,6 +1,7 @@
 """Deep Koopman training (torch): beats DMDc on a nonlinear system, deterministic, command line."""
 
 import json
+from dataclasses import replace as dataclass_replace
 
 import numpy as np
 import pytest
@@ -51,6 +52,39 @@ def test_training_beats_dmdc_on_a_nonlinear_system():
     # the exported numpy model reproduces the validation loss the training saw (float32 vs float64)
     assert k_mse == pytest.approx(koop.metadata["metrics"]["val_pred_mse"], rel=1e-3)
     assert koop.n_K == 6 and koop.metadata["fingerprint"] and res.best_epoch >= 1
+
+
+def speed_gain_logs(n_logs=8, n=400, seed=0):
+    """A yaw rate w that follows v * s (s a steering input): the input's gain grows with the speed v."""
+    rng = np.random.default_rng(seed)
+    logs = []
+    for i in range(n_logs):
+        v, w, a, st = rng.uniform(1, 12), 0.0, 0.0, 0.0
+        xs, us = np.empty((n, 2)), np.empty((n, 2))
+        for k in range(n):
+            a = 0.97 * a + 0.2 * rng.standard_normal()
+            st = 0.95 * st + 0.02 * rng.standard_normal()
+            xs[k], us[k] = (v, w), (a - 0.2 * (v - 7.0), st)
+            v = min(max(v + DT * us[k, 0], 0.5), 15.0)
+            w = w + DT * 3.0 * (v * st - w)
+        logs.append(Log(f"car{i}", xs, us, DT, ("v", "w"), ("acc", "steer")))
+    return logs
+
+
+def test_a_scheduled_input_matrix_learns_a_gain_that_grows_with_the_speed():
+    logs = speed_gain_logs()
+    train, val = logs[:6], logs[6:]
+    linear = train_koopman(train, val, CFG).model
+    scheduled = train_koopman(train, val, dataclass_replace(CFG, schedule="v")).model
+    assert scheduled.scheduled and scheduled.schedule == "v" and not linear.scheduled
+    lin_mse = validation_mse(linear, val, 1.0, linear.x_std, stride=4)
+    sch_mse = validation_mse(scheduled, val, 1.0, scheduled.x_std, stride=4)
+    assert sch_mse < 0.5 * lin_mse, (sch_mse, lin_mse)
+    # the steady turn rate per unit of steering, held for 2 s at 2 and at 10 (true: v)
+    gains = [scheduled.rollout(np.array([v, 0.0]), np.tile([0.0, 0.05], (40, 1)))[-1, 1] / 0.05 for v in (2.0, 10.0)]
+    assert gains[0] == pytest.approx(2.0, rel=0.3) and gains[1] == pytest.approx(10.0, rel=0.3)
+    with pytest.raises(ValueError, match="schedule"):
+        train_koopman(train, val, dataclass_replace(CFG, schedule="speed"))
 
 
 def test_command_line_is_deterministic_and_writes_a_manifest(tmp_path, capsys):

@@ -182,7 +182,7 @@ class EbRHRL:
         last = self._closed
         if last is not None and last[0] is problem.A and last[1] is problem.B:
             return last[2]
-        A_cl = np.ascontiguousarray(problem.A - np.einsum("tiu,tun->tin", problem.B, self.K))
+        A_cl = np.ascontiguousarray(problem.A - problem.B @ self.K)
         self._closed = (problem.A, problem.B, A_cl)
         return A_cl
 

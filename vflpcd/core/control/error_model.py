@@ -64,16 +64,24 @@ class ErrorModel:
     R (n_u, n_u), gamma, N steps, limits; comp: the GP structure (or None). The terminal P (n, n)
     solves the discounted DARE of the nominal error model, and K_terminal (n_u, n) is its LQR gain
     (the fallback law u~ = -K_terminal x~). ``gp_jacobians``: linearise with the GP's gradient
-    (eq. JocabianMatrices) instead of the nominal A, B (module docstring)."""
+    (eq. JocabianMatrices) instead of the nominal A, B (module docstring). A model with a scheduled
+    input matrix (B + s B_s) has its nominal pair (P, K_terminal, the solvers' priors) at
+    s = ``schedule_at`` and its horizon linearised at the reference every tick (``_scheduled_problem``;
+    ``problem_loop``: ``scheduled_kernel.problem_loop`` compiled, or None for the numpy path)."""
 
     def __init__(self, model: LiftedLinearModel, Q_x: np.ndarray, q_lift: float, R: np.ndarray, gamma: float,
-                 N: int, limits: Limits, comp: KoopmanCompensation | None = None, gp_jacobians: bool = False) -> None:
-        A, B = model.A, model.B
+                 N: int, limits: Limits, comp: KoopmanCompensation | None = None, gp_jacobians: bool = False,
+                 schedule_at: float | None = None, problem_loop=None) -> None:
+        if model.scheduled and schedule_at is None:
+            raise ValueError(f"a model scheduled on {model.schedule!r} needs the value its nominal pair is taken at")
+        A = model.A
+        B = model.B + (schedule_at * model.B_s if model.scheduled else 0.0)
         e_last = np.zeros(model.n_K)
         e_last[-1] = 1.0
         if not (np.allclose(A[-1], e_last) and np.allclose(B[-1], 0.0)):
             raise ValueError("the lifted model's last observable must be the constant 1")
         self.model, self.N, self.limits, self.comp = model, int(N), limits, comp
+        self.problem_loop = problem_loop if model.scheduled else None
         self.gp_jacobians = bool(gp_jacobians)
         self.n = model.n_K - 1
         self.A, self.B = A[:-1, :-1], B[:-1]
@@ -99,6 +107,8 @@ class ErrorModel:
         """The horizon problem of the module docstring."""
         m, N, lim = self.model, self.N, self.limits
         U_r = frame.U_r
+        if m.scheduled:
+            return self._scheduled_problem(frame, u_prev, gp)
         pred = U_r[:-1] @ m.A.T                                           # (N, n_K)
         u_r = (U_r[1:, : m.n_x] - pred[:, : m.n_x]) @ self._B_x_pinv.T
         u_r = np.minimum(np.maximum(u_r, lim.u_min), lim.u_max)          # clipped into the limits
@@ -112,6 +122,40 @@ class ErrorModel:
             B = np.array([b[:-1] for _, b in jac])
         else:
             A, B = self._A_N, self._B_N       # the same arrays every tick: solvers may keep what they derive from them
+        c = (nxt - U_r[1:])[:, :-1]
+        x0 = (frame.U - U_r[0])[:-1]
+        return HorizonProblem(A=A, B=B, c=c, x0=x0, Q=self.Q, R=self.R, P=self.P, gamma=self.gamma, u_ref=u_r,
+                              u_min=lim.u_min, u_max=lim.u_max, du_max=lim.du_max,
+                              u_prev=np.asarray(u_prev, float), G=self._no_G, g=self._no_g)
+
+    def _scheduled_problem(self, frame: TickFrame, u_prev: np.ndarray, gp: FITCGP | None) -> HorizonProblem:
+        """``problem`` for a model whose input matrix depends on a state s (``lifted``: B + s B_s):
+        u_r,tau from B_tau = B + s_r,tau B_s, and the linearisation at (Upsilon_r,tau, u_r,tau),
+        A_tau = A + B_s u_r,tau e_s', B_tau (per step; with ``gp_jacobians`` eq. JocabianMatrices of the
+        compensated model, ``KoopmanCompensation.jacobians``); by ``problem_loop`` when compiled
+        (``scheduled_kernel``, the same numbers)."""
+        m, N, lim = self.model, self.N, self.limits
+        U_r = frame.U_r
+        if self.problem_loop is not None:
+            u_r, nxt, A, B = self.problem_loop(np.ascontiguousarray(U_r), m.A, m.B, m.B_s, m.schedule_index,
+                                               m.n_x, lim.u_min, lim.u_max)
+        else:
+            pred = U_r[:-1] @ m.A.T
+            B_tau = m.input_matrix(U_r[:-1])                              # (N, n_K, n_u)
+            BxT = B_tau[:, : m.n_x].transpose(0, 2, 1)
+            rhs = BxT @ (U_r[1:, : m.n_x] - pred[:, : m.n_x])[..., None]
+            u_r = np.linalg.solve(BxT @ BxT.transpose(0, 2, 1), rhs)[..., 0]   # least squares per step
+            u_r = np.minimum(np.maximum(u_r, lim.u_min), lim.u_max)
+            nxt = pred + (B_tau @ u_r[..., None])[..., 0]
+            A = np.repeat(self.A[None], N, axis=0)
+            A[:, :, m.schedule_index] += u_r @ m.B_s[:-1].T
+            B = np.ascontiguousarray(B_tau[:, :-1])
+        if gp is not None and self.comp is not None:
+            nxt = nxt + gp.means(self.comp.gp_input(U_r[:-1], u_r)) @ self.comp.B_d.T
+        if gp is not None and self.comp is not None and self.gp_jacobians:
+            jac = [self.comp.jacobians(U_r[k], u_r[k], gp) for k in range(N)]     # the bilinear term's included
+            A = np.array([a[:-1, :-1] for a, _ in jac])
+            B = np.array([b[:-1] for _, b in jac])
         c = (nxt - U_r[1:])[:, :-1]
         x0 = (frame.U - U_r[0])[:-1]
         return HorizonProblem(A=A, B=B, c=c, x0=x0, Q=self.Q, R=self.R, P=self.P, gamma=self.gamma, u_ref=u_r,

@@ -42,17 +42,23 @@ class KoopmanCompensation:
     """Model-error compensation around Upsilon_{k+1} = A Upsilon_k + B u_k.
 
     A (n_K, n_K), B (n_K, n_u), B_d (n_K, n_y) (e.g. [0_3 I_3 0]^T), z_index (n_zx,) indices
-    of Upsilon entering the GP input z = [Upsilon[z_index], u].
+    of Upsilon entering the GP input z = [Upsilon[z_index], u]; for a model with a scheduled input
+    matrix (``lifted``: B + s B_s) B_s (n_K, n_u) and ``schedule``, the column of s in Upsilon.
     """
 
-    def __init__(self, A: np.ndarray, B: np.ndarray, B_d: np.ndarray, z_index) -> None:
+    def __init__(self, A: np.ndarray, B: np.ndarray, B_d: np.ndarray, z_index, B_s: np.ndarray | None = None,
+                 schedule: int | None = None) -> None:
+        if (B_s is None) != (schedule is None):
+            raise ValueError("a scheduled input matrix needs both B_s and the schedule column")
         self.A = np.array(A, dtype=float)
         self.B = np.array(B, dtype=float)
+        self.B_s = np.zeros_like(self.B) if B_s is None else np.array(B_s, dtype=float)
+        self.schedule = schedule
         self.B_d = np.array(B_d, dtype=float)
         self.z_index = np.array(z_index, dtype=np.int64).reshape(-1)
         n_K = self.A.shape[0]
         if (self.A.shape != (n_K, n_K) or self.B.ndim != 2 or self.B.shape[0] != n_K
-                or self.B_d.ndim != 2 or self.B_d.shape[0] != n_K
+                or self.B_s.shape != self.B.shape or self.B_d.ndim != 2 or self.B_d.shape[0] != n_K
                 or np.any(self.z_index < 0) or np.any(self.z_index >= n_K)):
             raise ValueError("inconsistent shapes of A, B, B_d or z_index")
         self.n_K, self.n_u, self.n_y = n_K, self.B.shape[1], self.B_d.shape[1]
@@ -65,8 +71,12 @@ class KoopmanCompensation:
         return np.concatenate([U[..., self.z_index], u], axis=-1)
 
     def nominal(self, U: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """A U + B u for U (..., n_K), u (..., n_u) -> (..., n_K)."""
-        return np.asarray(U, dtype=float) @ self.A.T + np.asarray(u, dtype=float) @ self.B.T
+        """A U + (B + s B_s) u for U (..., n_K), u (..., n_u) -> (..., n_K)."""
+        U, u = np.asarray(U, dtype=float), np.asarray(u, dtype=float)
+        nom = U @ self.A.T + u @ self.B.T
+        if self.schedule is not None:
+            nom = nom + U[..., self.schedule, None] * (u @ self.B_s.T)
+        return nom
 
     def residual_target(self, U_k: np.ndarray, u_k: np.ndarray, U_next: np.ndarray) -> TrainingPairs:
         """Eq. (error_model) over N samples: U_k (N, n_K), u_k (N, n_u), U_next (N, n_K)
@@ -95,13 +105,17 @@ class KoopmanCompensation:
                   ) -> tuple[np.ndarray, np.ndarray]:
         """Eq. (JocabianMatrices) at (U_r (n_K,), u_r (n_u,)) -> A_d (n_K, n_K), B_d,k (n_K, n_u),
         with dm/dUpsilon from dm/dz by the chain rule through z_index."""
+        A, B = self.A.copy(), self.B.copy()
+        if self.schedule is not None:             # the bilinear term's own Jacobians
+            A[:, self.schedule] += self.B_s @ np.asarray(u_r, dtype=float)
+            B += float(U_r[self.schedule]) * self.B_s
         if gp is None:
-            return self.A.copy(), self.B.copy()
+            return A, B
         _, J = gp.mean_jacobian(self.gp_input(U_r, u_r))                  # (n_y, n_z)
         nx = self.z_index.size
         dm_dU = np.zeros((self.n_y, self.n_K))
         np.add.at(dm_dU, (slice(None), self.z_index), J[:, :nx])
-        return self.A + self.B_d @ dm_dU, self.B + self.B_d @ J[:, nx:]
+        return A + self.B_d @ dm_dU, B + self.B_d @ J[:, nx:]
 
 
 class RefitJob(NamedTuple):

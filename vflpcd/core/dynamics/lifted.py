@@ -11,6 +11,15 @@ predicts with the linear time-invariant system
 reading the predicted state as the first n_x entries. ``rollout`` lifts once and iterates.
 The DMDc/EDMDc baselines (``vflpcd.training.dmdc``) and the deep Koopman model share it.
 
+Scheduled input matrix (optional): with a scheduling channel s (a state, e.g. the car's v_x) the
+input matrix depends on it,
+
+    Upsilon_{k+1} = A Upsilon_k + (B + s_k B_s) u_k,     s_k = Upsilon_k[schedule], B_s: (n_K, n_u),
+
+a bilinear lift restricted to one state. A model linear in u has one steady input gain at every
+state; a car's yaw rate per radian of steering grows with its speed (kinematic at low speed), which
+``B + v_x B_s`` represents. Without a schedule B_s is zero and the model is the linear one.
+
 Normalisation lives in the model: per-channel means and standard deviations of the states
 (``x_mean``, ``x_std``, (n_x,)) and controls (``u_mean``, ``u_std``, (n_u,)) that it was
 fitted with. Models fitted in normalised coordinates x_n = (x - x_mean) / x_std,
@@ -139,53 +148,79 @@ def from_window_frame(window_states: np.ndarray, state_names: Sequence[str], ori
 
 def to_physical(A_n: np.ndarray, B_n: np.ndarray, x_mean: np.ndarray, x_std: np.ndarray,
                 u_mean: np.ndarray, u_std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Physical (A, B) from a model fitted on Z_n = [x_n, phi, 1] (n_K,) with normalised controls.
+    """Physical (A, B) of a linear model fitted on Z_n = [x_n, phi, 1] with normalised controls
+    (``to_physical_scheduled`` without a scheduled input matrix)."""
+    A, B, _ = to_physical_scheduled(A_n, B_n, np.zeros_like(np.asarray(B_n, dtype=np.float64)), 0,
+                                    x_mean, x_std, u_mean, u_std)
+    return A, B
 
-    A_n: (n_K, n_K), B_n: (n_K, n_u); the last lifted entry must be the constant 1 (its row of
-    A_n is e_last, of B_n zero). With U = [x, phi, 1] = P Z_n, P = [[diag(x_std), 0, x_mean],
-    [0, I, 0], [0, 0, 1]], and u_n = (u - u_mean) / u_std:
-    A = P (A_n - B_n diag(1/u_std) u_mean e_last^T) P^-1, B = P B_n diag(1/u_std)."""
+
+def to_physical_scheduled(A_n: np.ndarray, B_n: np.ndarray, B_s_n: np.ndarray, schedule: int,
+                          x_mean: np.ndarray, x_std: np.ndarray, u_mean: np.ndarray, u_std: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Physical (A, B, B_s) from a model fitted on Z_n = [x_n, phi, 1] (n_K,) with normalised
+    controls, Z_n' = A_n Z_n + (B_n + s_n B_s_n) u_n with s_n = Z_n[schedule] (a state channel).
+
+    A_n: (n_K, n_K), B_n, B_s_n: (n_K, n_u); the last lifted entry must be the constant 1 (its row
+    of A_n is e_last, of B_n and B_s_n zero). With U = [x, phi, 1] = P Z_n, P = [[diag(x_std), 0,
+    x_mean], [0, I, 0], [0, 0, 1]], u_n = D (u - u_mean), D = diag(1/u_std), and s_n = (s - m_s) / sd_s
+    (m_s, sd_s the schedule channel's x_mean and x_std):
+    A = P (A_n - B_n D u_mean e_last^T - B_s_n D u_mean e_schedule^T) P^-1,
+    B = P (B_n - m_s / sd_s B_s_n) D,  B_s = P B_s_n D / sd_s,  so that U' = A U + (B + s B_s) u."""
     A_n = np.asarray(A_n, dtype=np.float64)
     B_n = np.asarray(B_n, dtype=np.float64)
+    B_s_n = np.asarray(B_s_n, dtype=np.float64)
     n_K, n_x = A_n.shape[0], len(x_mean)
     x_std = np.asarray(x_std, dtype=np.float64)
     x_mean = np.asarray(x_mean, dtype=np.float64)
+    u_mean = np.asarray(u_mean, dtype=np.float64)
     inv_us = 1.0 / np.asarray(u_std, dtype=np.float64)
-    B_u = B_n * inv_us[None, :]
+    B_u, B_su = B_n * inv_us[None, :], B_s_n * inv_us[None, :]
+    m_s, sd_s = x_mean[schedule], x_std[schedule]
     A_eff = A_n.copy()
-    A_eff[:, -1] -= B_u @ np.asarray(u_mean, dtype=np.float64)
+    A_eff[:, -1] -= B_u @ u_mean
+    A_eff[:, schedule] -= B_su @ u_mean
     P = np.eye(n_K)
     P[:n_x, :n_x] = np.diag(x_std)
     P[:n_x, -1] = x_mean
     P_inv = np.eye(n_K)
     P_inv[:n_x, :n_x] = np.diag(1.0 / x_std)
     P_inv[:n_x, -1] = -x_mean / x_std
-    return P @ A_eff @ P_inv, P @ B_u
+    return P @ A_eff @ P_inv, P @ (B_u - (m_s / sd_s) * B_su), P @ B_su / sd_s
 
 
 class LiftedLinearModel(ABC):
-    """Upsilon(x) = [x, rho(x)], Upsilon_{k+1} = A Upsilon_k + B u_k (module docstring).
+    """Upsilon(x) = [x, rho(x)], Upsilon_{k+1} = A Upsilon_k + (B + s_k B_s) u_k (module docstring).
 
     Subclasses implement :meth:`rho`. States given to ``lift``/``rollout`` are in the window
     frame. Attributes: A (n_K, n_K),
     B (n_K, n_u), state_names (n_x,), control_names (n_u,), dt (s), x_mean/x_std (n_x,),
-    u_mean/u_std (n_u,).
+    u_mean/u_std (n_u,); ``schedule`` the name of the state channel s that scales B_s (n_K, n_u)
+    (None: a linear model, B_s zero) and ``schedule_index`` its column.
     """
 
     def __init__(self, A: np.ndarray, B: np.ndarray, *, state_names: Sequence[str],
                  control_names: Sequence[str], dt: float, x_mean: np.ndarray, x_std: np.ndarray,
-                 u_mean: np.ndarray, u_std: np.ndarray) -> None:
+                 u_mean: np.ndarray, u_std: np.ndarray, B_s: np.ndarray | None = None,
+                 schedule: str | None = None) -> None:
         self.A = np.array(A, dtype=np.float64)
         self.B = np.array(B, dtype=np.float64)
+        if (B_s is None) != (schedule is None):
+            raise ValueError("a scheduled input matrix needs both B_s and the schedule channel's name")
+        self.B_s = np.zeros_like(self.B) if B_s is None else np.array(B_s, dtype=np.float64)
+        self.schedule = schedule
         self.state_names = tuple(state_names)
+        if schedule is not None and schedule not in self.state_names:
+            raise ValueError(f"the schedule channel {schedule!r} is not a state ({', '.join(self.state_names)})")
+        self.schedule_index = self.state_names.index(schedule) if schedule is not None else None
         self.control_names = tuple(control_names)
         self.dt = float(dt)
         n_x, n_u = len(self.state_names), len(self.control_names)
         n_K = self.A.shape[0]
         if self.A.shape != (n_K, n_K) or n_K < n_x:
             raise ValueError(f"A must be square with at least {n_x} rows, got {self.A.shape}")
-        if self.B.shape != (n_K, n_u):
-            raise ValueError(f"B must have shape ({n_K}, {n_u}), got {self.B.shape}")
+        if self.B.shape != (n_K, n_u) or self.B_s.shape != (n_K, n_u):
+            raise ValueError(f"B and B_s must have shape ({n_K}, {n_u}), got {self.B.shape} and {self.B_s.shape}")
         self.x_mean, self.x_std = self._stat(x_mean, n_x, "x_mean"), self._stat(x_std, n_x, "x_std", True)
         self.u_mean, self.u_std = self._stat(u_mean, n_u, "u_mean"), self._stat(u_std, n_u, "u_std", True)
         if not (self.dt > 0.0):
@@ -245,8 +280,26 @@ class LiftedLinearModel(ABC):
         U = self.lift(x0)
         out = np.empty((M, H + 1, self.n_x))
         out[:, 0] = x0
-        At, Bt = self.A.T, self.B.T
         for k in range(H):
-            U = U @ At + controls[:, k] @ Bt
+            U = self.step(U, controls[:, k])
             out[:, k + 1] = U[:, : self.n_x]
         return out
+
+    @property
+    def scheduled(self) -> bool:
+        """Whether the input matrix depends on a state (B_s, module docstring)."""
+        return self.schedule_index is not None
+
+    def step(self, U: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """One prediction step: U (..., n_K), u (..., n_u) -> A U + (B + s B_s) u (..., n_K)."""
+        nxt = U @ self.A.T + u @ self.B.T
+        if self.schedule_index is not None:
+            nxt = nxt + U[..., self.schedule_index, None] * (u @ self.B_s.T)
+        return nxt
+
+    def input_matrix(self, U: np.ndarray) -> np.ndarray:
+        """B + s B_s at the lifted states U (..., n_K) -> (..., n_K, n_u)."""
+        U = np.asarray(U, dtype=np.float64)
+        if self.schedule_index is None:
+            return np.broadcast_to(self.B, U.shape[:-1] + self.B.shape)
+        return self.B + U[..., self.schedule_index, None, None] * self.B_s

@@ -19,7 +19,7 @@ CONTROLS = ("a_x", "delta_f")
 REPO = Path(__file__).resolve().parents[4]
 
 
-def random_model(n_K=10, hidden=(16, 8), seed=0) -> KoopmanModel:
+def random_model(n_K=10, hidden=(16, 8), seed=0, scheduled=False) -> KoopmanModel:
     rng = np.random.default_rng(seed)
     n_x, n_u = len(NAMES), len(CONTROLS)
     dims = [n_x, *hidden, n_K - n_x - 1]
@@ -30,9 +30,15 @@ def random_model(n_K=10, hidden=(16, 8), seed=0) -> KoopmanModel:
     A[-1, -1] = 1.0
     B = 0.05 * rng.normal(size=(n_K, n_u))
     B[-1] = 0.0
+    extra = {}
+    if scheduled:
+        B_s = 0.01 * rng.normal(size=(n_K, n_u))
+        B_s[-1] = 0.0
+        extra = {"B_s": B_s, "schedule": "vx"}
     return KoopmanModel(A, B, enc_weights=Ws, enc_biases=bs, metadata={"fingerprint": "abc", "metrics": {"x": 1.0}},
                         state_names=NAMES, control_names=CONTROLS, dt=0.05, x_mean=rng.normal(size=n_x),
-                        x_std=rng.uniform(0.5, 2, n_x), u_mean=rng.normal(size=n_u), u_std=rng.uniform(0.5, 2, n_u))
+                        x_std=rng.uniform(0.5, 2, n_x), u_mean=rng.normal(size=n_u), u_std=rng.uniform(0.5, 2, n_u),
+                        **extra)
 
 
 def rewrite(src: Path, dst: Path, change) -> Path:
@@ -61,21 +67,53 @@ def test_numpy_round_trip_and_lift_layout(tmp_path):
     assert save_koopman(m, tmp_path / "again.npz").read_bytes() == path.read_bytes()
 
 
-def test_torch_network_and_numpy_model_predict_the_same(tmp_path):
+def test_scheduled_model_round_trip_and_prediction(tmp_path):
+    m = random_model(scheduled=True)
+    got = load_koopman(save_koopman(m, tmp_path / "s.npz"), state_names=NAMES, control_names=CONTROLS)
+    assert got.scheduled and got.schedule == "vx" and got.schedule_index == 3
+    np.testing.assert_array_equal(got.B_s, m.B_s)
+    assert not random_model().scheduled and not load_koopman(save_koopman(random_model(), tmp_path / "l.npz")).scheduled
+    rng = np.random.default_rng(2)
+    x0, u = rng.normal(size=6), rng.normal(size=(4, 2))
+    U = got.lift(x0)
+    for k in range(4):                                     # U' = A U + (B + v_x B_s) u
+        U = got.A @ U + (got.B + U[3] * got.B_s) @ u[k]
+    np.testing.assert_allclose(got.rollout(x0, u)[-1], U[:6], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(got.input_matrix(got.lift(x0)), got.B + x0[3] * got.B_s, rtol=1e-12)
+
+
+@pytest.mark.parametrize("change,key", [
+    (lambda a: a.pop("B_s"), "B_s"),
+    (lambda a: a.__setitem__("B_s", np.ones((10, 2))), "B_s"),
+    (lambda a: a.__setitem__("metadata", np.array(json.dumps(
+        {**json.loads(str(a["metadata"])), "schedule": "speed"}))), "metadata.schedule"),
+])
+def test_bad_scheduled_artifacts_name_the_key(tmp_path, change, key):
+    good = save_koopman(random_model(scheduled=True), tmp_path / "good.npz")
+    with pytest.raises(ConfigError) as err:
+        load_koopman(rewrite(good, tmp_path / "bad.npz", change))
+    assert err.value.field == key
+
+
+@pytest.mark.parametrize("scheduled", [False, True])
+def test_torch_network_and_numpy_model_predict_the_same(tmp_path, scheduled):
     torch = pytest.importorskip("torch", reason="torch is not installed (pip install '.[train]')")
     from vflpcd.training.train_koopman import build_network, export_model, network_rollout
 
     torch.manual_seed(3)
-    net = build_network(6, 2, 10, (32, 32))
+    net = build_network(6, 2, 10, (32, 32), schedule=3 if scheduled else None)
     rng = np.random.default_rng(4)
     with torch.no_grad():
         A = np.eye(10)[:-1] + 0.05 * rng.normal(size=(9, 10))
         net.A_top.copy_(torch.as_tensor(A, dtype=torch.float32))
         net.B_top.copy_(torch.as_tensor(0.1 * rng.normal(size=(9, 2)), dtype=torch.float32))
+        if scheduled:
+            net.B_s_top.copy_(torch.as_tensor(0.05 * rng.normal(size=(9, 2)), dtype=torch.float32))
     stats = {"x_mean": rng.normal(size=6), "x_std": rng.uniform(0.3, 3.0, 6),
              "u_mean": rng.normal(size=2), "u_std": rng.uniform(0.3, 3.0, 2)}
     model = export_model(net, stats, NAMES, CONTROLS, 0.05, {"fingerprint": "f", "metrics": {}})
     loaded = load_koopman(save_koopman(model, tmp_path / "k.npz"), state_names=NAMES, control_names=CONTROLS)
+    assert loaded.scheduled == scheduled
     x0 = rng.normal(size=(16, 6)) * stats["x_std"] + stats["x_mean"]
     for H in (1, 20):
         u = rng.normal(size=(16, H, 2)) * stats["u_std"] + stats["u_mean"]
