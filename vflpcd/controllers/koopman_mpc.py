@@ -503,7 +503,8 @@ def bicycle_problem(rng: np.random.Generator, N: int = 20, m: int = 2, x0_scale:
                     model_path: str | None = None) -> HorizonProblem:
     """A HorizonProblem on the shipped dynamic-bicycle Koopman model (n = 9, n_u = 2).
 
-    A = A_K[:-1, :-1], B = B_K[:-1] (the constant observable dropped) for every step,
+    A = A_K[:-1, :-1], B = B_K[:-1] (the constant observable dropped; for a model scheduled on the
+    speed, B_K + 6 B_s, its input matrix at 6 m/s) for every step,
     Q = diag(1, 4, 4, 0.5, 0, ...), R = diag(0.1, 1), P the discrete ARE solution, gamma = 1,
     c = 0, u_ref = 0, x0 = x0_scale * standard normal (n,), a in [-6, 3], delta in
     [-0.5, 0.5], du_max = [inf, 0.03], u_prev = 0, and (m <= 2) two unit-norm half-planes per
@@ -517,7 +518,7 @@ def bicycle_problem(rng: np.random.Generator, N: int = 20, m: int = 2, x0_scale:
     path = model_path if model_path is not None else config_dir() / "models" / "dynamic_bicycle.npz"
     km = load_koopman(path)
     A = np.asarray(km.A, float)[:-1, :-1]
-    B = np.asarray(km.B, float)[:-1]
+    B = np.asarray(km.B + (6.0 * km.B_s if km.scheduled else 0.0), float)[:-1]
     n, n_u = A.shape[0], B.shape[1]
     Q = np.diag([1.0, 4.0, 4.0, 0.5] + [0.0] * (n - 4))
     R = np.diag([0.1, 1.0])

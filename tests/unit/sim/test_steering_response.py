@@ -12,7 +12,7 @@ from vflpcd.core.dynamics.koopman import KoopmanModel
 
 @pytest.fixture(scope="module")
 def model():
-    return load_koopman(config_dir() / "models" / "dynamic_bicycle.npz",
+    return load_koopman(config_dir() / "models" / "dynamic_bicycle_scheduled.npz",
                         state_names=("X", "Y", "psi", "vx", "vy", "omega"), control_names=("a_x", "delta_f"))
 
 
@@ -30,7 +30,7 @@ def test_rows_are_the_plant_and_the_models_open_loop_prediction(model):
     assert rows[0]["plant_left"] < rows[1]["plant_left"] < rows[2]["plant_left"]
     p = BicycleConfig.load("nominal").params
     assert rows[0]["plant_left"] == pytest.approx(3.0 * 0.05 / (p.lf + p.lr), rel=0.1)
-    # ... and so does the shipped model's, whose input matrix is scheduled on the speed
+    # ... and so does the scheduled model's (config/models/dynamic_bicycle_scheduled.npz)
     assert model.scheduled and model.schedule == "vx"
     for r in rows:
         assert 0.85 < r["ratio_left"] < 1.15 and 0.85 < r["ratio_right"] < 1.15

@@ -12,7 +12,9 @@ lifted together: Upsilon(x) (n_K,) for the robot and Upsilon(x_r,tau) for tau = 
 * c_tau = A Upsilon_r,tau + B u_r,tau + B_d m(z_r,tau) - Upsilon_r,tau+1: what the reference does not
   satisfy under the (compensated) model;
 * A_tau, B_tau: the nominal A and B; with ``gp_jacobians``, eq. JocabianMatrices at
-  (Upsilon_r,tau, u_r,tau) when a GP is given.
+  (Upsilon_r,tau, u_r,tau) when a GP is given. A model whose input matrix is scheduled on a state
+  (``lifted``: B + s B_s) is linearised at the reference every step instead: B_tau = B + s_r,tau B_s,
+  A_tau = A + B_s u_r,tau e_s', with u_r,tau fitted through B_tau (``ErrorModel._scheduled_problem``).
 
 Why the nominal Jacobians by default: the GP's mean is what removes the model's offset (it enters
 c_tau, the horizon's affine term), while the gradient of a sparse GP fitted on a few hundred

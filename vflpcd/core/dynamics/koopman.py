@@ -18,7 +18,8 @@ where the encoder rho_e: R^{n_x} -> R^{n_e}, n_e = n_K - n_x - 1, is a multilaye
 b_i (d_i,), d_0 = n_x, d_L = n_e). The last lifted entry is the constant 1, the convention
 of :func:`vflpcd.core.dynamics.lifted.to_physical`: it carries the affine offsets of the
 normalisation, so A (n_K, n_K) and B (n_K, n_u) act on the physical [x, rho_e, 1] and the
-predicted state is the first n_x entries of Upsilon_{k+1} = A Upsilon_k + B u_k.
+predicted state is the first n_x entries of Upsilon_{k+1} = A Upsilon_k + B u_k (plus s_k B_s u_k for
+a model whose input matrix is scheduled on a state s, ``lifted``).
 
 The artifact (an ``.npz`` archive) is read and written by ``vflpcd.config.koopman_file``.
 """

@@ -79,3 +79,21 @@ def test_the_compiled_problem_equals_the_numpy_path(clipped):
     assert clipped == bool(np.any(np.abs(numpy_path.u_ref[:, 1]) >= 0.5))
     for field in ("A", "B", "c", "x0", "u_ref"):
         np.testing.assert_allclose(getattr(compiled, field), getattr(numpy_path, field), rtol=1e-12, atol=1e-12)
+
+
+def test_vflpc_drives_with_the_scheduled_model():
+    from vflpcd.base.paths import config_dir
+    from vflpcd.config.scenarios import load_scenario
+    from vflpcd.controllers.vflpc import make_vflpc
+    from sim.plants import make_plant
+
+    scenario = load_scenario("racing_track")
+    ctrl = make_vflpc(scenario, model_path=config_dir() / "models" / "dynamic_bicycle_scheduled.npz")
+    assert ctrl.model.scheduled
+    plant = make_plant(scenario, 0)
+    lateral = []
+    for k in range(120):                                   # 6 s: the start's heading error, then the bend
+        u = ctrl.step(plant.state, k * 0.05)
+        plant.step(u, 0.05)
+        lateral.append(abs(scenario.path.project(plant.position()).lateral))
+    assert ctrl.fallbacks == 0 and max(lateral[60:]) < 0.15, max(lateral[60:])

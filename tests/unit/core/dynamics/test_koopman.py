@@ -170,14 +170,16 @@ def test_importing_the_inference_module_does_not_import_torch():
     assert r.returncode == 0, r.stderr
 
 
-@pytest.mark.parametrize("name,states,controls,n_K", [
-    ("dynamic_bicycle", ("X", "Y", "psi", "vx", "vy", "omega"), ("a_x", "delta_f"), 10),
-    ("quadrotor", ("X", "Y", "Z", "vx", "vy", "vz"), ("ax", "ay", "az"), 18),
+@pytest.mark.parametrize("name,states,controls,n_K,schedule", [
+    ("dynamic_bicycle", ("X", "Y", "psi", "vx", "vy", "omega"), ("a_x", "delta_f"), 10, None),
+    ("dynamic_bicycle_scheduled", ("X", "Y", "psi", "vx", "vy", "omega"), ("a_x", "delta_f"), 10, "vx"),
+    ("quadrotor", ("X", "Y", "Z", "vx", "vy", "vz"), ("ax", "ay", "az"), 18, None),
 ])
-def test_shipped_models_load(name, states, controls, n_K):
+def test_shipped_models_load(name, states, controls, n_K, schedule):
     path = config_dir() / "models" / f"{name}.npz"
     model = load_koopman(path, state_names=states, control_names=controls)
     assert model.n_K == n_K and model.n_u == len(controls) and model.dt == pytest.approx(0.05)
+    assert model.schedule == schedule
     assert path.stat().st_size < 1_000_000
     manifest = json.loads(path.with_suffix(".manifest.json").read_text())
     assert manifest["seed"] == 0 and "collect" in manifest["data_command"] and "train_koopman" in manifest["command"]
