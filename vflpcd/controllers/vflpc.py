@@ -99,7 +99,7 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
                  scenario.guidance.safety_margin, solver=solver,
                  compensator=compensator_for(model, params) if compensation else None, name=name,
                  state_names=state_names(scenario.platform), period=period, solve_loop=ebrhrl_loop(),
-                 path_loop=path_loop(), problem_loop=scheduled_problem_loop())
+                 path_loop=path_loop(), problem_loop=scheduled_problem_loop() if model.scheduled else None)
 
 
 def make_vflpc_ml(scenario, **options) -> VFLPC:
