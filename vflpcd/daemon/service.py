@@ -249,12 +249,13 @@ class Daemon:
                 since_ns = loop.ended_ns
         failure = await self._come_to_rest(loop, since_ns) if started or prepared else None
         if started:
-            link_stats = self.platform.link_stats()
-            if link_stats:
-                loop.event("link_stats", **link_stats)
             loop.event("stopping", reason=reason if failure is None else f"{reason}; {failure}")
             loop.stop(0.5)
         await self._bounded(self.platform.close(), 0.5)
+        if started:                             # after the close: every frame the link sent, the hand-back too
+            link_stats = self.platform.link_stats()
+            if link_stats:
+                loop.event("link_stats", **link_stats)
         for close in self.closers:
             try:
                 close()
