@@ -112,7 +112,7 @@ def test_flood_of_valid_messages_does_not_starve_replans(tmp_path, mission_file,
     picture, the car passes the barrel on its road, and no failsafe trips."""
     (tmp_path / "barrel.toml").write_text(line_scenario_toml("barrel", length=80.0, speed=5.0, t_max=60.0,
                                                              obstacles=BARREL))
-    mission = load_mission(mission_file(route="barrel.toml", rate_hz=20.0, telemetry_port=port, sched_fifo=True,
+    mission = load_mission(mission_file(route="barrel.toml", rate_hz=20.0, telemetry_port=port,
                                         telemetry_extra="perception = true\nperception_rate_hz = 50.0"))
     flood = subprocess.Popen([sys.executable, "-c", FLOOD, str(port), "1500", "11", KEY],
                              stdout=subprocess.PIPE, text=True)

@@ -53,7 +53,7 @@ def test_sigkill_leaves_a_log_every_mcap_reader_reads_to_within_a_second(mission
 @pytest.mark.parametrize("slack", [4096, 0], ids=["room_for_a_last_record", "no_room_at_all"])
 def test_a_full_disk_stops_the_log_not_the_vehicle_and_the_summary_says_so(mission_file, tmp_path, monkeypatch,
                                                                             slack):
-    mission = load_mission(mission_file(rate_hz=RATE, sched_fifo=True))       # no stall from the suite's load
+    mission = load_mission(mission_file(rate_hz=RATE))
     disk = FullDisk(tmp_path / "logs", limit=50_000, slack=slack)        # the header and about 1 s of ticks
     monkeypatch.setattr(os, "pwrite", disk)
     result = run_mission(mission, stop_after_s=3.0)
