@@ -41,7 +41,7 @@ from vflpcd.config.scenarios import load_scenario
 from vflpcd.core.dynamics.compensation import KoopmanCompensation, OnlineCompensator
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
 from vflpcd.core.dynamics.sparse_gp import FITCGP, SEHyper, refit
-from vflpcd.config.vehicles import BicycleConfig
+from vflpcd.config.vehicles import STATE_NAMES, BicycleConfig
 from sim.plants.dynamic_bicycle import DynamicBicycle
 
 SHIPPED = load_params("ground")      # the GP that vflpc_ml ships with ([compensation] of vflpc.toml)
@@ -144,17 +144,19 @@ def steering_response(model: LiftedLinearModel, speeds=(1.5, 3.0, 6.0, 10.0, 15.
     (a_x = 0): the plant's (``params``) and the model's open-loop prediction (module docstring)."""
     cfg = BicycleConfig.load(params)
     steps = int(round(seconds / model.dt))
-    om = model.state_names.index("omega")
+    names = model.state_names
     rows = []
     for v in speeds:
         row = {"speed": float(v)}
         for sign, key in ((1.0, "left"), (-1.0, "right")):
             u = np.array([0.0, sign * delta])
-            plant = DynamicBicycle(cfg, [0.0, 0.0, 0.0, v, 0.0, 0.0])
+            straight = np.where(np.array(STATE_NAMES) == "vx", v, 0.0)       # at the origin, heading along X
+            plant = DynamicBicycle(cfg, straight)
             for _ in range(steps):
                 plant.step(u, model.dt)
-            pred = model.rollout(np.array([0.0, 0.0, 0.0, v, 0.0, 0.0]), np.tile(u, (steps, 1)))
-            row[f"plant_{key}"], row[f"model_{key}"] = float(plant.state[5]), float(pred[-1, om])
+            pred = model.rollout(straight[[STATE_NAMES.index(n) for n in names]], np.tile(u, (steps, 1)))
+            row[f"plant_{key}"] = float(plant.state[STATE_NAMES.index("omega")])
+            row[f"model_{key}"] = float(pred[-1, names.index("omega")])
             row[f"ratio_{key}"] = row[f"model_{key}"] / row[f"plant_{key}"]
         rows.append(row)
     return rows

@@ -73,8 +73,8 @@ def compensator_for(model, params: VFLPCParams) -> OnlineCompensator:
     B_d = np.zeros((model.n_K, n_y))
     B_d[rows, range(n_y)] = 1.0
     z_index = rows + list(range(model.n_x, model.n_K - 1))
-    comp = KoopmanCompensation(model.A, model.B, B_d, z_index, *((model.B_s, model.schedule_index)
-                                                                 if model.scheduled else ()))
+    comp = KoopmanCompensation(model.A, model.B, B_d, z_index, B_s=model.B_s if model.scheduled else None,
+                               schedule=model.schedule_index)
     hyp = SEHyper(ell=np.full(n_y, params.gp_ell), sf2=np.full(n_y, params.gp_sf2), sn2=np.full(n_y, params.gp_sn2))
     bounds = tuple((float(np.log(lo)), float(np.log(hi))) for lo, hi in params.gp_bounds)
     return OnlineCompensator(comp, hyp, nu=params.gp_nu, m_max=params.gp_m_max, n_max=params.gp_n_max, bounds=bounds)

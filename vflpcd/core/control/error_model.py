@@ -83,7 +83,7 @@ class ErrorModel:
         if not (np.allclose(A[-1], e_last) and np.allclose(B[-1], 0.0)):
             raise ValueError("the lifted model's last observable must be the constant 1")
         self.model, self.N, self.limits, self.comp = model, int(N), limits, comp
-        self.problem_loop = problem_loop if model.scheduled else None
+        self.problem_loop = problem_loop
         self.gp_jacobians = bool(gp_jacobians)
         self.n = model.n_K - 1
         self.A, self.B = A[:-1, :-1], B[:-1]
@@ -138,7 +138,7 @@ class ErrorModel:
         (``scheduled_kernel``, the same numbers)."""
         m, N, lim = self.model, self.N, self.limits
         U_r = frame.U_r
-        if self.problem_loop is not None:
+        if self.problem_loop is not None:       # the same numbers, compiled
             u_r, nxt, A, B = self.problem_loop(np.ascontiguousarray(U_r), m.A, m.B, m.B_s, m.schedule_index,
                                                m.n_x, lim.u_min, lim.u_max)
         else:
@@ -149,9 +149,8 @@ class ErrorModel:
             u_r = np.linalg.solve(BxT @ BxT.transpose(0, 2, 1), rhs)[..., 0]   # least squares per step
             u_r = np.minimum(np.maximum(u_r, lim.u_min), lim.u_max)
             nxt = pred + (B_tau @ u_r[..., None])[..., 0]
-            A = np.repeat(self.A[None], N, axis=0)
-            A[:, :, m.schedule_index] += u_r @ m.B_s[:-1].T
-            B = np.ascontiguousarray(B_tau[:, :-1])
+            A_J, B_J = m.jacobians(U_r[:-1], u_r)
+            A, B = np.ascontiguousarray(A_J[:, :-1, :-1]), np.ascontiguousarray(B_J[:, :-1])
         if gp is not None and self.comp is not None:
             nxt = nxt + gp.means(self.comp.gp_input(U_r[:-1], u_r)) @ self.comp.B_d.T
         if gp is not None and self.comp is not None and self.gp_jacobians:

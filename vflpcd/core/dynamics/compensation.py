@@ -25,6 +25,7 @@ from typing import NamedTuple
 import numpy as np
 
 from vflpcd.core.dynamics.ald import ALDDictionary
+from vflpcd.core.dynamics.lifted import scheduled_jacobians, scheduled_step
 from vflpcd.core.dynamics.sparse_gp import DEFAULT_BOUNDS, FITCGP, SEHyper, refit
 
 
@@ -72,11 +73,7 @@ class KoopmanCompensation:
 
     def nominal(self, U: np.ndarray, u: np.ndarray) -> np.ndarray:
         """A U + (B + s B_s) u for U (..., n_K), u (..., n_u) -> (..., n_K)."""
-        U, u = np.asarray(U, dtype=float), np.asarray(u, dtype=float)
-        nom = U @ self.A.T + u @ self.B.T
-        if self.schedule is not None:
-            nom = nom + U[..., self.schedule, None] * (u @ self.B_s.T)
-        return nom
+        return scheduled_step(self.A, self.B, self.B_s, self.schedule, U, u)
 
     def residual_target(self, U_k: np.ndarray, u_k: np.ndarray, U_next: np.ndarray) -> TrainingPairs:
         """Eq. (error_model) over N samples: U_k (N, n_K), u_k (N, n_u), U_next (N, n_K)
@@ -105,10 +102,7 @@ class KoopmanCompensation:
                   ) -> tuple[np.ndarray, np.ndarray]:
         """Eq. (JocabianMatrices) at (U_r (n_K,), u_r (n_u,)) -> A_d (n_K, n_K), B_d,k (n_K, n_u),
         with dm/dUpsilon from dm/dz by the chain rule through z_index."""
-        A, B = self.A.copy(), self.B.copy()
-        if self.schedule is not None:             # the bilinear term's own Jacobians
-            A[:, self.schedule] += self.B_s @ np.asarray(u_r, dtype=float)
-            B += float(U_r[self.schedule]) * self.B_s
+        A, B = scheduled_jacobians(self.A, self.B, self.B_s, self.schedule, U_r, u_r)     # the nominal step's
         if gp is None:
             return A, B
         _, J = gp.mean_jacobian(self.gp_input(U_r, u_r))                  # (n_y, n_z)

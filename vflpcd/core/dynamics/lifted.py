@@ -292,14 +292,41 @@ class LiftedLinearModel(ABC):
 
     def step(self, U: np.ndarray, u: np.ndarray) -> np.ndarray:
         """One prediction step: U (..., n_K), u (..., n_u) -> A U + (B + s B_s) u (..., n_K)."""
-        nxt = U @ self.A.T + u @ self.B.T
-        if self.schedule_index is not None:
-            nxt = nxt + U[..., self.schedule_index, None] * (u @ self.B_s.T)
-        return nxt
+        return scheduled_step(self.A, self.B, self.B_s, self.schedule_index, U, u)
 
     def input_matrix(self, U: np.ndarray) -> np.ndarray:
         """B + s B_s at the lifted states U (..., n_K) -> (..., n_K, n_u)."""
-        U = np.asarray(U, dtype=np.float64)
-        if self.schedule_index is None:
-            return np.broadcast_to(self.B, U.shape[:-1] + self.B.shape)
-        return self.B + U[..., self.schedule_index, None, None] * self.B_s
+        return scheduled_input_matrix(self.B, self.B_s, self.schedule_index, U)
+
+    def jacobians(self, U: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The step's Jacobians at (U (..., n_K), u (..., n_u)): A + (B_s u) e_s' (..., n_K, n_K) and
+        B + s B_s (..., n_K, n_u)."""
+        return scheduled_jacobians(self.A, self.B, self.B_s, self.schedule_index, U, u)
+
+
+def scheduled_step(A: np.ndarray, B: np.ndarray, B_s: np.ndarray, schedule: int | None, U: np.ndarray,
+                   u: np.ndarray) -> np.ndarray:
+    """A U + (B + s B_s) u, s = U[..., schedule] (the plain A U + B u when ``schedule`` is None)."""
+    U, u = np.asarray(U, dtype=np.float64), np.asarray(u, dtype=np.float64)
+    nxt = U @ A.T + u @ B.T
+    if schedule is not None:
+        nxt = nxt + U[..., schedule, None] * (u @ B_s.T)
+    return nxt
+
+
+def scheduled_input_matrix(B: np.ndarray, B_s: np.ndarray, schedule: int | None, U: np.ndarray) -> np.ndarray:
+    """B + s B_s at the lifted states U (..., n_K) -> (..., n_K, n_u)."""
+    U = np.asarray(U, dtype=np.float64)
+    if schedule is None:
+        return np.broadcast_to(B, U.shape[:-1] + B.shape)
+    return B + U[..., schedule, None, None] * B_s
+
+
+def scheduled_jacobians(A: np.ndarray, B: np.ndarray, B_s: np.ndarray, schedule: int | None, U: np.ndarray,
+                        u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """d/dU and d/du of ``scheduled_step`` at (U (..., n_K), u (..., n_u)): A + (B_s u) e_s' and B + s B_s."""
+    u = np.asarray(u, dtype=np.float64)
+    A_J = np.array(np.broadcast_to(A, u.shape[:-1] + A.shape))
+    if schedule is not None:
+        A_J[..., :, schedule] += u @ B_s.T
+    return A_J, np.array(scheduled_input_matrix(B, B_s, schedule, U))
