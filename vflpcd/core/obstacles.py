@@ -33,6 +33,12 @@ class ObstacleState:
         c = self.center if t is None else self.center_at(t)
         return self.shape.signed_distance(points, c, self.yaw)
 
+    def distance_and_normal(self, points: np.ndarray, t: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distance (...) of points (..., d) at time t (default: stamp) and its unit gradient
+        (..., d), the outward normal at the nearest boundary point (``Shape.distance_and_normal``)."""
+        c = self.center if t is None else self.center_at(t)
+        return self.shape.distance_and_normal(points, c, self.yaw)
+
     @property
     def moving(self) -> bool:
         """Whether any velocity component is non-zero."""

@@ -21,6 +21,12 @@ nearest boundary point, not a bound):
   ``y_m`` is tiny.  Points with ``y_m == 0`` (on the plane of the largest axes)
   use Eberly's closed-form branches.  The same root is the nearest point inside.
 
+``distance_and_normal`` returns the signed distance with its unit gradient (the outward normal
+at the nearest boundary point): in closed form for circles, spheres, boxes and box3s, by central
+differences (step ``NORMAL_FD_STEP``) of the signed distance otherwise; where the gradient
+vanishes (the centre of a round shape, a point on a medial axis) the direction from the centre
+(or body x at the centre) stands in.
+
 References
 ----------
 [1] D. Eberly, "Distance from a Point to an Ellipse, an Ellipsoid, or a
@@ -47,9 +53,39 @@ _MIN_OUTLINE_POINTS = 5
 
 
 # --------------------------------------------------------------------------- helpers
+NORMAL_FD_STEP = 1e-5  # m, central differences of the signed distance for its normal (shapes without a closed form)
+
+
 def _box_sd(q: np.ndarray) -> np.ndarray:
     """Exact box signed distance from ``q = |p| - half_extent``; q (N, k) -> (N,)."""
     return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
+
+
+def _box_sd_normal(p: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Box signed distance and its unit gradient at body points p (N, k) of a box of half extents
+    ``half`` (k,): outside along the offset from the nearest boundary point, inside along the
+    face axis nearest (the sign of p; + on a medial plane)."""
+    sign = np.where(p < 0.0, -1.0, 1.0)
+    q = np.abs(p) - half
+    out = np.maximum(q, 0.0)
+    r = np.linalg.norm(out, axis=-1)
+    inner = q.max(axis=-1)
+    n = np.zeros_like(p)
+    n[np.arange(len(p)), np.argmax(q, axis=-1)] = 1.0           # inside: the nearest face's axis
+    outside = r > 0.0
+    n[outside] = out[outside] / r[outside, None]
+    return r + np.minimum(inner, 0.0), sign * n
+
+
+def _unit_or_radial(g: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """The rows of g (N, k) made unit; where a row vanishes, the direction of p from the centre
+    (body x at the centre)."""
+    norm = np.linalg.norm(g, axis=1, keepdims=True)
+    radial = np.linalg.norm(p, axis=1, keepdims=True)
+    centre = np.zeros_like(p)
+    centre[:, 0] = 1.0
+    fallback = np.where(radial > 1e-12, p / np.maximum(radial, 1e-12), centre)
+    return np.where(norm > 1e-9, g / np.maximum(norm, 1e-300), fallback)
 
 
 def _ellipsoid_root(e: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -187,6 +223,27 @@ class Shape:
         body, lead = self._to_body(points, center, yaw)
         return self._sd_body(body).reshape(lead)
 
+    def distance_and_normal(self, points, center, yaw: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distance (...) [m] as ``signed_distance``, and its unit gradient (..., dim), world
+        frame (module docstring)."""
+        body, lead = self._to_body(points, center, yaw)
+        sd, n = self._sd_normal_body(body)
+        cy, sy = math.cos(float(yaw)), math.sin(float(yaw))
+        world = n.copy()
+        world[:, 0] = cy * n[:, 0] - sy * n[:, 1]             # R(yaw) n
+        world[:, 1] = sy * n[:, 0] + cy * n[:, 1]
+        return sd.reshape(lead), world.reshape(lead + (self.dim,))
+
+    def _sd_normal_body(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distance (N,) and unit gradient (N, dim) at body points p (N, dim): central
+        differences; a shape with a closed form overrides it."""
+        n = np.empty_like(p)
+        for j in range(self.dim):
+            e = np.zeros(self.dim)
+            e[j] = NORMAL_FD_STEP
+            n[:, j] = self._sd_body(p + e) - self._sd_body(p - e)
+        return self._sd_body(p), _unit_or_radial(n, p)
+
     def bounding_radius(self) -> float:
         """Radius [m] of the smallest origin-centred circle/sphere enclosing the shape."""
         raise NotImplementedError  # pragma: no cover
@@ -239,6 +296,9 @@ class Circle(Shape2D):
     def _sd_body(self, p):
         return np.hypot(p[:, 0], p[:, 1]) - self.radius
 
+    def _sd_normal_body(self, p):
+        return np.hypot(p[:, 0], p[:, 1]) - self.radius, _unit_or_radial(p, p)
+
     def bounding_radius(self) -> float:
         return self.radius
 
@@ -286,6 +346,9 @@ class Box(Shape2D):
     def _sd_body(self, p):
         return _box_sd(np.abs(p) - self.support_extent())
 
+    def _sd_normal_body(self, p):
+        return _box_sd_normal(p, self.support_extent())
+
     def bounding_radius(self) -> float:
         return 0.5 * math.hypot(self.length, self.width)
 
@@ -316,6 +379,9 @@ class Sphere(Shape):
 
     def _sd_body(self, p):
         return np.linalg.norm(p, axis=1) - self.radius
+
+    def _sd_normal_body(self, p):
+        return np.linalg.norm(p, axis=1) - self.radius, _unit_or_radial(p, p)
 
     def bounding_radius(self) -> float:
         return self.radius
@@ -361,6 +427,9 @@ class Box3(Shape):
 
     def _sd_body(self, p):
         return _box_sd(np.abs(p) - self.support_extent())
+
+    def _sd_normal_body(self, p):
+        return _box_sd_normal(p, self.support_extent())
 
     def bounding_radius(self) -> float:
         return 0.5 * math.sqrt(self.length**2 + self.width**2 + self.height**2)

@@ -374,3 +374,33 @@ def test_shape_from_table_and_registries():
         shape_from_table("ellipse", {"a": 2, "b": 1, "c": 3})
     with pytest.raises(ValueError, match=r"Sphere\.radius"):
         shape_from_table("sphere", {"radius": -2.0})
+
+
+@pytest.mark.parametrize("shape", [Circle(1.2), Box(4.6, 1.9), Ellipse(2.0, 1.0), Sphere(0.8), Box3(2.0, 1.0, 0.6),
+                                   Ellipsoid(1.5, 1.0, 0.5), Cylinder(0.7, 1.4)])
+def test_distance_and_normal_is_the_signed_distance_and_its_gradient(shape):
+    rng = np.random.default_rng(3)
+    d = shape.dim
+    pts = rng.uniform(-4.0, 4.0, size=(400, d))
+    center, yaw = rng.normal(size=d), 0.7
+    sd, n = shape.distance_and_normal(pts, center, yaw)
+    np.testing.assert_array_equal(sd, shape.signed_distance(pts, center, yaw))
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
+    h = 1e-6
+    fd = np.stack([(shape.signed_distance(pts + h * e, center, yaw) - shape.signed_distance(pts - h * e, center, yaw))
+                   / (2 * h) for e in np.eye(d)], axis=1)
+    smooth = np.abs(np.linalg.norm(fd, axis=1) - 1.0) < 1e-4       # off the medial axes, where the gradient exists
+    assert smooth.mean() > 0.9
+    np.testing.assert_allclose(n[smooth], fd[smooth], atol=1e-5)
+    # the nearest boundary point lies sd back along the normal
+    on = pts - sd[:, None] * n
+    np.testing.assert_allclose(shape.signed_distance(on, center, yaw), 0.0, atol=1e-6)
+
+
+def test_distance_and_normal_keeps_the_leading_shape_and_a_direction_at_the_centre():
+    sd, n = Circle(1.0).distance_and_normal(np.zeros((2, 3, 2)), np.zeros(2))
+    assert sd.shape == (2, 3) and n.shape == (2, 3, 2)
+    np.testing.assert_allclose(n.reshape(-1, 2), [[1.0, 0.0]] * 6)
+    sd, n = Box(2.0, 1.0).distance_and_normal(np.array([[0.9, 0.1], [-0.1, -0.45]]), np.zeros(2))
+    np.testing.assert_allclose(sd, [-0.1, -0.05])
+    np.testing.assert_allclose(n, [[1.0, 0.0], [0.0, -1.0]])

@@ -31,7 +31,6 @@ import numpy as np
 from vflpcd.core.obstacles import ObstacleState
 
 PI_MIN = -2.0  # below this pi / l_b the exponential continues as its tangent line (bounded gradient)
-FD_STEP = 1e-5  # m, central differences of the signed distance for the normal
 
 
 def safety_points(obstacle: ObstacleState, points: np.ndarray, times: np.ndarray, grow: float
@@ -44,17 +43,7 @@ def safety_points(obstacle: ObstacleState, points: np.ndarray, times: np.ndarray
     times = np.asarray(times, float).reshape(-1)
     shift = obstacle.velocity[None, :] * (times - obstacle.stamp)[:, None]
     q = points - shift                        # the obstacle at rest at its stamped pose
-    d = q.shape[1]
-    grad = np.empty_like(q)
-    for j in range(d):
-        e = np.zeros(d)
-        e[j] = FD_STEP
-        grad[:, j] = (obstacle.signed_distance(q + e) - obstacle.signed_distance(q - e)) / (2 * FD_STEP)
-    norm = np.linalg.norm(grad, axis=1, keepdims=True)
-    centre_dir = q - obstacle.center[None, :]
-    fallback = centre_dir / np.maximum(np.linalg.norm(centre_dir, axis=1, keepdims=True), 1e-12)
-    n = np.where(norm > 1e-9, grad / np.maximum(norm, 1e-12), fallback)
-    sd = obstacle.signed_distance(q)
+    sd, n = obstacle.distance_and_normal(q)
     x_p = points - (sd - grow)[:, None] * n
     return x_p, n
 

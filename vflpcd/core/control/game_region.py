@@ -80,10 +80,15 @@ def threats(robot_position: np.ndarray, robot_velocity: np.ndarray, centers: np.
     centers = np.atleast_2d(np.asarray(centers, float))
     if centers.shape[0] == 0:
         return np.zeros(0, dtype=bool)
+    relative = centers - np.asarray(robot_position, float)
+    l = np.asarray(l, float)
+    near = row_norms(relative) <= l + l_safe            # E_p1 (||zeta|| is the distance): most ticks none is
+    if not near.any():
+        return near
     robot_velocity = np.asarray(robot_velocity, float)
     v_e = vector_norm(robot_velocity)
-    zeta = evader_frame(centers - np.asarray(robot_position, float), robot_velocity)
+    zeta = evader_frame(relative, robot_velocity)
     if v_e <= V_EVADER_MIN:
-        return np.hypot(zeta[:, 0], zeta[:, 1]) <= np.asarray(l, float) + l_safe
+        return near
     s_bar = bup_angle(row_norms(np.atleast_2d(np.asarray(velocities, float))), v_e)
     return in_region(zeta, l, l_safe, s_bar)

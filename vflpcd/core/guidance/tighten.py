@@ -46,7 +46,6 @@ from vflpcd.core.path import unit_differences
 
 REACH = 2.0             # m: a disc this much farther than the clearance from a shape leaves its point free
 CLEAR_TOLERANCE = 0.02  # m the final discs may sit inside the clearance (the tangent moves between rounds)
-FD_STEP = 1e-5          # m: forward differences of the signed distance
 STIFFER = 4.0           # l is doubled up to this many times the configured length (a stiffer detour reaches
                         # ever farther along the path: past it the field's own path is the better one)
 
@@ -83,18 +82,11 @@ class Keepout:
         o = self.obstacle
         return o.signed_distance(pts - self._travel(times)) if o.moving else o.signed_distance(pts)
 
-
-def _sd_grad(k: Keepout, pts: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Signed distance of pts (M, d) (reached at times (M,)) to k's shape and its unit gradient
-    (forward differences: the half-plane's normal, re-taken every outer round, needs no more than
-    their O(FD_STEP) accuracy), from one evaluation of the d + 1 stacked point sets."""
-    m, d = pts.shape
-    steps = np.vstack([np.zeros(d), FD_STEP * np.eye(d)])        # (d + 1, d)
-    sd = k.signed_distance((pts[None] + steps[:, None, :]).reshape(-1, d), np.tile(times, len(steps)))
-    sd = sd.reshape(len(steps), m)
-    grad = ((sd[1:] - sd[0]) / FD_STEP).T
-    grad /= np.maximum(np.linalg.norm(grad, axis=1, keepdims=True), 1e-12)
-    return sd[0], grad
+    def distance_and_normal(self, pts: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distance (M,) of pts (M, d), reached at times (M,), to the shape, and its unit
+        gradient (M, d) (``Shape.distance_and_normal``)."""
+        o = self.obstacle
+        return o.distance_and_normal(pts - self._travel(times) if o.moving else pts)
 
 
 def _within(k: Keepout, body: Body, x: np.ndarray, times: np.ndarray, beyond: float) -> np.ndarray:
@@ -144,7 +136,7 @@ def body_half_planes(x: np.ndarray, times: np.ndarray, body: Body, keepouts: Seq
         if idx.size == 0:
             continue
         xi, si = x[idx], slack[idx]
-        sds, gs = _sd_grad(k, _disc_centres(xi, t[idx], body), np.tile(times[idx], len(body.offsets)))
+        sds, gs = k.distance_and_normal(_disc_centres(xi, t[idx], body), np.tile(times[idx], len(body.offsets)))
         for sd, g in zip(sds.reshape(-1, idx.size), gs.reshape(-1, idx.size, x.shape[1])):
             want = body.radius + k.clearance - si - sd
             near = (want > -REACH) & (want > need[idx])
