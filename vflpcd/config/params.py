@@ -57,7 +57,7 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
     feat, bar, rep = root.table("features"), root.table("barrier"), root.table("replan")
     cost.check_known({"q_ground", "r_ground", "r_rate_ground", "q_aerial", "r_aerial", "r_rate_aerial", "q_lift",
                       "gamma", "r_rate_threat_ground", "r_rate_threat_aerial",
-                      "r_rate_light_ground", "r_rate_light_aerial", "light_hold"})
+                      "r_rate_light_ground", "r_rate_light_aerial", "light_hold", "light_speeds"})
     hor.check_known({"seconds"})
     sol.check_known({"i_max", "tol", "eta_a", "divergence"})
     feat.check_known({"error_std_ground", "error_std_aerial", "samples", "size", "nu", "ell_factor", "seed"})
@@ -80,6 +80,9 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
     r_light = cost.vector(key, len(r)) if cost.has(key) else None
     if r_light is not None and (r_rate is None or np.any(r_light <= 0)):
         raise cost.error(key, f"increment weights must be > 0, and r_rate_{platform} must be given too")
+    light_speeds = cost.vector("light_speeds", 2) if cost.has("light_speeds") else np.array([0.0, np.inf])
+    if not (0.0 <= light_speeds[0] < light_speeds[1]):
+        raise cost.error("light_speeds", f"expected [low, high] m/s with 0 <= low < high, got {light_speeds.tolist()}")
     gamma = cost.number("gamma", min=0.0)
     if not (0.0 < gamma <= 1.0):
         raise cost.error("gamma", f"must lie in (0, 1], got {gamma}")
@@ -112,4 +115,5 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
                R_rate=None if r_rate is None else np.diag(r_rate),
                R_rate_threat=None if r_threat is None else np.diag(r_threat),
                R_rate_light=None if r_light is None else np.diag(r_light),
-               light_hold=cost.number("light_hold", 2.0, min=0.0))
+               light_hold=cost.number("light_hold", 2.0, min=0.0),
+               light_speeds=(float(light_speeds[0]), float(light_speeds[1])))

@@ -154,6 +154,7 @@ class VFLPCParams:
     R_rate_threat: np.ndarray | None = None
     R_rate_light: np.ndarray | None = None
     light_hold: float = 2.0
+    light_speeds: tuple[float, float] = (0.0, np.inf)
     gp_channels: tuple[str, ...] = ("vx", "vy", "omega")
     gp_ell: float = 3.0
     gp_sf2: float = 0.05
@@ -350,7 +351,8 @@ class VFLPC(ControllerBase):
         barrier = self._barrier(frame, p_ref_world, pos, vel, t, obstacles)
         self._select_mode()
         if self.rate is not None:
-            u_tilde0 = self._solve_increments(problem, barrier, t)
+            lo, hi = self.params.light_speeds
+            u_tilde0 = self._solve_increments(problem, barrier, t, lo <= vector_norm(vel) <= hi)
         else:
             u_tilde0 = self._solve(problem, barrier, self.errors.K_terminal)
         u = problem.u_ref[0] + u_tilde0
@@ -562,15 +564,17 @@ class VFLPC(ControllerBase):
         self.rate, self.solver = self._threat_mode if threatened else self._cruise_mode
         self.solver.reset()
 
-    def _solve_increments(self, problem: HorizonProblem, barrier: HorizonBarrier, t: float) -> np.ndarray:
+    def _solve_increments(self, problem: HorizonProblem, barrier: HorizonBarrier, t: float,
+                          light_speed: bool = True) -> np.ndarray:
         """u~_0 from the increment form of ``problem`` (rate.py) in the tick's mode. Cruising with
-        ``R_rate_light`` given, the light weights are tried first: their plan is kept when every
+        ``R_rate_light`` given, at a speed within ``light_speeds`` (``light_speed``: where the model's
+        steering response is close to the vehicle's), the light weights are tried first: their plan is kept when every
         planned step stays within the actuator's rate limit; a plan that breaks it is solved again
         with ``R_rate`` and the light weights are left for ``light_hold`` s. The light weights track
         tightly where the reference asks for gentle steering; the heavy ones keep a solver that has
         no constraints from asking for steps the actuator cannot make (rate.py: the loop then
         oscillates behind the rate clip)."""
-        light = self._light_mode is not None and not self._threatened and t >= self._heavy_until
+        light = self._light_mode is not None and not self._threatened and t >= self._heavy_until and light_speed
         if light:
             rate, solver = self._light_mode
             if not self._light:

@@ -208,14 +208,45 @@ def test_light_weights_while_their_plans_keep_the_rate_limit(straight, monkeypat
     assert ctrl._light
 
 
-def test_light_weights_need_the_cruise_weights():
-    assert make_vflpc(dataclasses.replace(load_scenario("carsim_avoidance"), obstacles=()))._light_mode is None
+def test_light_weights_need_the_cruise_weights_and_a_speed_band():
+    shipped = load_params("ground")
+    assert shipped.R_rate_light[1, 1] < shipped.R_rate[1, 1] and shipped.light_speeds == (4.0, 9.0)
+    assert make_vflpc(dataclasses.replace(load_scenario("carsim_avoidance"), obstacles=()))._light_mode is not None
     light = {"r_rate_light_ground": [300.0, 30.0]}
     assert vflpc_params(_table({"cost": light}), "ground").R_rate_light[1, 1] == 30.0
+    assert vflpc_params(_table({"cost": {"light_speeds": None}}), "ground").light_speeds == (0.0, np.inf)
     with pytest.raises(ConfigError, match="r_rate_light_ground"):
         vflpc_params(_table({"cost": {**light, "r_rate_ground": None, "r_rate_threat_ground": None}}), "ground")
     with pytest.raises(ConfigError, match="r_rate_light_ground"):
         vflpc_params(_table({"cost": {"r_rate_light_ground": [300.0, 0.0]}}), "ground")
+    for bad in ([9.0, 4.0], [-1.0, 4.0], [4.0, 4.0]):
+        with pytest.raises(ConfigError, match="light_speeds"):
+            vflpc_params(_table({"cost": {"light_speeds": bad}}), "ground")
+
+
+def test_light_weights_only_within_their_speed_band(straight, monkeypatch):
+    """At 25 km/h (6.9 m/s) on the straight: within [4, 9] m/s the light weights are tried and kept;
+    with a band the car's speed lies below they are never tried."""
+    import vflpcd.controllers.vflpc as factory
+
+    shipped = factory.load_params
+    for band, expect in (((4.0, 9.0), True), ((20.0, 30.0), False)):
+        monkeypatch.setattr(factory, "load_params", lambda platform, path=None, band=band: dataclasses.replace(
+            shipped(platform, path), light_speeds=band))
+        ctrl = make_vflpc(straight)
+        plant = make_plant(straight, 0)
+        tried = {"calls": 0}
+        solver = ctrl._light_mode[1]
+        real = solver.solve
+
+        def counted(problem, barrier, real=real):
+            tried["calls"] += 1
+            return real(problem, barrier)
+
+        solver.solve = counted
+        for k in range(20):
+            plant.step(ctrl.step(plant.state, k * DT), DT)
+        assert ctrl._light is expect and (tried["calls"] > 0) is expect
 
 
 def test_a_replan_leaves_along_the_course_of_a_slipping_body(straight):
