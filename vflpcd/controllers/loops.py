@@ -134,7 +134,7 @@ def _warm_ebrhrl(loop) -> None:
 
 
 def _warm_scheduled(loop) -> None:
-    """Compile (or load) the loop now, for the argument types ``ErrorModel._scheduled_problem`` passes."""
+    """Compile (or load) the loop now, for the argument types ``ErrorModel._scheduled_linearisation`` passes."""
     import numpy as np
 
     loop(np.ones((2, 3)), np.eye(3), np.ones((3, 1)), np.zeros((3, 1)), 0, 1, -np.ones(1), np.ones(1))

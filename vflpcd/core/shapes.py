@@ -241,7 +241,7 @@ class Shape:
         for j in range(self.dim):
             e = np.zeros(self.dim)
             e[j] = NORMAL_FD_STEP
-            n[:, j] = self._sd_body(p + e) - self._sd_body(p - e)
+            n[:, j] = self._sd_body(p + e) - self._sd_body(p - e)     # 2 h times the gradient: made unit below
         return self._sd_body(p), _unit_or_radial(n, p)
 
     def bounding_radius(self) -> float:

@@ -351,8 +351,7 @@ class VFLPC(ControllerBase):
         barrier = self._barrier(frame, p_ref_world, pos, vel, t, obstacles)
         self._select_mode()
         if self.rate is not None:
-            lo, hi = self.params.light_speeds
-            u_tilde0 = self._solve_increments(problem, barrier, t, lo <= vector_norm(vel) <= hi)
+            u_tilde0 = self._solve_increments(problem, barrier, t, vel)
         else:
             u_tilde0 = self._solve(problem, barrier, self.errors.K_terminal)
         u = problem.u_ref[0] + u_tilde0
@@ -565,16 +564,18 @@ class VFLPC(ControllerBase):
         self.solver.reset()
 
     def _solve_increments(self, problem: HorizonProblem, barrier: HorizonBarrier, t: float,
-                          light_speed: bool = True) -> np.ndarray:
+                          velocity: np.ndarray) -> np.ndarray:
         """u~_0 from the increment form of ``problem`` (rate.py) in the tick's mode. Cruising with
-        ``R_rate_light`` given, at a speed within ``light_speeds`` (``light_speed``: where the model's
-        steering response is close to the vehicle's), the light weights are tried first: their plan is kept when every
+        ``R_rate_light`` given, at a speed (of ``velocity``, world) within ``light_speeds`` (where the
+        model's steering response is close to the vehicle's), the light weights are tried first: their plan is kept when every
         planned step stays within the actuator's rate limit; a plan that breaks it is solved again
         with ``R_rate`` and the light weights are left for ``light_hold`` s. The light weights track
         tightly where the reference asks for gentle steering; the heavy ones keep a solver that has
         no constraints from asking for steps the actuator cannot make (rate.py: the loop then
         oscillates behind the rate clip)."""
-        light = self._light_mode is not None and not self._threatened and t >= self._heavy_until and light_speed
+        lo, hi = self.params.light_speeds
+        light = (self._light_mode is not None and not self._threatened and t >= self._heavy_until
+                 and lo <= vector_norm(velocity) <= hi)
         if light:
             rate, solver = self._light_mode
             if not self._light:

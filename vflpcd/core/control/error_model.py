@@ -14,7 +14,7 @@ lifted together: Upsilon(x) (n_K,) for the robot and Upsilon(x_r,tau) for tau = 
 * A_tau, B_tau: the nominal A and B; with ``gp_jacobians``, eq. JocabianMatrices at
   (Upsilon_r,tau, u_r,tau) when a GP is given. A model whose input matrix is scheduled on a state
   (``lifted``: B + s B_s) is linearised at the reference every step instead: B_tau = B + s_r,tau B_s,
-  A_tau = A + B_s u_r,tau e_s', with u_r,tau fitted through B_tau (``ErrorModel._scheduled_problem``).
+  A_tau = A + B_s u_r,tau e_s', with u_r,tau fitted through B_tau (``ErrorModel._scheduled_linearisation``).
 
 Why the nominal Jacobians by default: the GP's mean is what removes the model's offset (it enters
 c_tau, the horizon's affine term), while the gradient of a sparse GP fitted on a few hundred
@@ -68,7 +68,7 @@ class ErrorModel:
     (the fallback law u~ = -K_terminal x~). ``gp_jacobians``: linearise with the GP's gradient
     (eq. JocabianMatrices) instead of the nominal A, B (module docstring). A model with a scheduled
     input matrix (B + s B_s) has its nominal pair (P, K_terminal, the solvers' priors) at
-    s = ``schedule_at`` and its horizon linearised at the reference every tick (``_scheduled_problem``;
+    s = ``schedule_at`` and its horizon linearised at the reference every tick (``_scheduled_linearisation``;
     ``problem_loop``: ``scheduled_kernel.problem_loop`` compiled, or None for the numpy path)."""
 
     def __init__(self, model: LiftedLinearModel, Q_x: np.ndarray, q_lift: float, R: np.ndarray, gamma: float,
@@ -109,59 +109,47 @@ class ErrorModel:
         """The horizon problem of the module docstring."""
         m, N, lim = self.model, self.N, self.limits
         U_r = frame.U_r
-        if m.scheduled:
-            return self._scheduled_problem(frame, u_prev, gp)
-        pred = U_r[:-1] @ m.A.T                                           # (N, n_K)
-        u_r = (U_r[1:, : m.n_x] - pred[:, : m.n_x]) @ self._B_x_pinv.T
-        u_r = np.minimum(np.maximum(u_r, lim.u_min), lim.u_max)          # clipped into the limits
-        nxt = pred + u_r @ m.B.T
+        u_r, nxt, A, B = self._scheduled_linearisation(U_r) if m.scheduled else self._linearisation(U_r)
         if gp is not None and self.comp is not None:
-            z = self.comp.gp_input(U_r[:-1], u_r)
-            nxt = nxt + gp.means(z) @ self.comp.B_d.T
+            nxt = nxt + gp.means(self.comp.gp_input(U_r[:-1], u_r)) @ self.comp.B_d.T
         if gp is not None and self.comp is not None and self.gp_jacobians:
-            jac = [self.comp.jacobians(U_r[k], u_r[k], gp) for k in range(N)]
+            jac = [self.comp.jacobians(U_r[k], u_r[k], gp) for k in range(N)]     # a scheduled model's bilinear term included
             A = np.array([a[:-1, :-1] for a, _ in jac])
             B = np.array([b[:-1] for _, b in jac])
-        else:
-            A, B = self._A_N, self._B_N       # the same arrays every tick: solvers may keep what they derive from them
         c = (nxt - U_r[1:])[:, :-1]
         x0 = (frame.U - U_r[0])[:-1]
         return HorizonProblem(A=A, B=B, c=c, x0=x0, Q=self.Q, R=self.R, P=self.P, gamma=self.gamma, u_ref=u_r,
                               u_min=lim.u_min, u_max=lim.u_max, du_max=lim.du_max,
                               u_prev=np.asarray(u_prev, float), G=self._no_G, g=self._no_g)
 
-    def _scheduled_problem(self, frame: TickFrame, u_prev: np.ndarray, gp: FITCGP | None) -> HorizonProblem:
-        """``problem`` for a model whose input matrix depends on a state s (``lifted``: B + s B_s):
+    def _linearisation(self, U_r: np.ndarray):
+        """u_r,tau (N, n_u) through the pseudo-inverse of B's physical rows, clipped into the limits, the
+        nominal next lifted states (N, n_K) and the nominal pair (the same arrays every tick: solvers
+        may keep what they derive from them)."""
+        m, lim = self.model, self.limits
+        pred = U_r[:-1] @ m.A.T                                           # (N, n_K)
+        u_r = (U_r[1:, : m.n_x] - pred[:, : m.n_x]) @ self._B_x_pinv.T
+        u_r = np.minimum(np.maximum(u_r, lim.u_min), lim.u_max)
+        return u_r, pred + u_r @ m.B.T, self._A_N, self._B_N
+
+    def _scheduled_linearisation(self, U_r: np.ndarray):
+        """``_linearisation`` for a model whose input matrix depends on a state s (``lifted``: B + s B_s):
         u_r,tau from B_tau = B + s_r,tau B_s, and the linearisation at (Upsilon_r,tau, u_r,tau),
-        A_tau = A + B_s u_r,tau e_s', B_tau (per step; with ``gp_jacobians`` eq. JocabianMatrices of the
-        compensated model, ``KoopmanCompensation.jacobians``); by ``problem_loop`` when compiled
+        A_tau = A + B_s u_r,tau e_s', B_tau per step; by ``problem_loop`` when compiled
         (``scheduled_kernel``, the same numbers)."""
-        m, N, lim = self.model, self.N, self.limits
-        U_r = frame.U_r
+        m, lim = self.model, self.limits
         if self.problem_loop is not None:       # the same numbers, compiled
-            u_r, nxt, A, B = self.problem_loop(np.ascontiguousarray(U_r), m.A, m.B, m.B_s, m.schedule_index,
-                                               m.n_x, lim.u_min, lim.u_max)
-        else:
-            pred = U_r[:-1] @ m.A.T
-            B_tau = m.input_matrix(U_r[:-1])                              # (N, n_K, n_u)
-            BxT = B_tau[:, : m.n_x].transpose(0, 2, 1)
-            rhs = BxT @ (U_r[1:, : m.n_x] - pred[:, : m.n_x])[..., None]
-            u_r = np.linalg.solve(BxT @ BxT.transpose(0, 2, 1), rhs)[..., 0]   # least squares per step
-            u_r = np.minimum(np.maximum(u_r, lim.u_min), lim.u_max)
-            nxt = pred + (B_tau @ u_r[..., None])[..., 0]
-            A_J, B_J = m.jacobians(U_r[:-1], u_r)
-            A, B = np.ascontiguousarray(A_J[:, :-1, :-1]), np.ascontiguousarray(B_J[:, :-1])
-        if gp is not None and self.comp is not None:
-            nxt = nxt + gp.means(self.comp.gp_input(U_r[:-1], u_r)) @ self.comp.B_d.T
-        if gp is not None and self.comp is not None and self.gp_jacobians:
-            jac = [self.comp.jacobians(U_r[k], u_r[k], gp) for k in range(N)]     # the bilinear term's included
-            A = np.array([a[:-1, :-1] for a, _ in jac])
-            B = np.array([b[:-1] for _, b in jac])
-        c = (nxt - U_r[1:])[:, :-1]
-        x0 = (frame.U - U_r[0])[:-1]
-        return HorizonProblem(A=A, B=B, c=c, x0=x0, Q=self.Q, R=self.R, P=self.P, gamma=self.gamma, u_ref=u_r,
-                              u_min=lim.u_min, u_max=lim.u_max, du_max=lim.du_max,
-                              u_prev=np.asarray(u_prev, float), G=self._no_G, g=self._no_g)
+            return self.problem_loop(np.ascontiguousarray(U_r), m.A, m.B, m.B_s, m.schedule_index,
+                                     m.n_x, lim.u_min, lim.u_max)
+        pred = U_r[:-1] @ m.A.T
+        B_tau = m.input_matrix(U_r[:-1])                              # (N, n_K, n_u)
+        BxT = B_tau[:, : m.n_x].transpose(0, 2, 1)
+        rhs = BxT @ (U_r[1:, : m.n_x] - pred[:, : m.n_x])[..., None]
+        u_r = np.linalg.solve(BxT @ BxT.transpose(0, 2, 1), rhs)[..., 0]   # least squares per step
+        u_r = np.minimum(np.maximum(u_r, lim.u_min), lim.u_max)
+        A_J, B_J = m.jacobians(U_r[:-1], u_r)
+        return (u_r, pred + (B_tau @ u_r[..., None])[..., 0], np.ascontiguousarray(A_J[:, :-1, :-1]),
+                np.ascontiguousarray(B_J[:, :-1]))
 
     def to_window(self, frame: TickFrame, points: np.ndarray, vectors: bool = False) -> np.ndarray:
         """World points (or direction vectors) (..., d) -> the tick's window frame."""

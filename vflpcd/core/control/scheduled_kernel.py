@@ -1,6 +1,6 @@
 """``error_model.ErrorModel``'s horizon linearisation for a scheduled input matrix, as one loop to compile.
 
-For every prediction step tau (``ErrorModel._scheduled_problem`` is the numpy path, the same
+For every prediction step tau (``ErrorModel._scheduled_linearisation`` is the numpy path, the same
 numbers to 1e-12, tests/unit/core/control/test_error_model_scheduled.py):
 
     B_tau = B + s_r,tau B_s                       (s the schedule column j of Upsilon_r,tau)

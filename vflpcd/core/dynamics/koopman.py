@@ -47,6 +47,11 @@ def encoder_forward(x_n: np.ndarray, weights: Sequence[np.ndarray], biases: Sequ
     return h.astype(np.float64)
 
 
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
 class KoopmanModel(LiftedLinearModel):
     """Deep Koopman lifted linear model: rho(x) = [rho_e((x - x_mean) / x_std), 1] (module docstring).
 
@@ -60,8 +65,8 @@ class KoopmanModel(LiftedLinearModel):
     def __init__(self, A, B, *, enc_weights: Sequence[np.ndarray], enc_biases: Sequence[np.ndarray],
                  metadata: Mapping[str, Any] | None = None, **kwargs) -> None:
         super().__init__(A, B, **kwargs)
-        self.enc_weights = [np.array(W, dtype=np.float64) for W in enc_weights]
-        self.enc_biases = [np.array(b, dtype=np.float64).reshape(-1) for b in enc_biases]
+        self.enc_weights = tuple(_read_only(np.array(W, dtype=np.float64)) for W in enc_weights)
+        self.enc_biases = tuple(_read_only(np.array(b, dtype=np.float64).reshape(-1)) for b in enc_biases)
         self.metadata = dict(metadata or {})
         if not self.enc_weights or len(self.enc_weights) != len(self.enc_biases):
             raise ValueError("the encoder needs as many weight matrices as bias vectors (at least one)")
@@ -74,6 +79,7 @@ class KoopmanModel(LiftedLinearModel):
             raise ValueError(f"n_K = {self.n_K} must equal n_x + n_encoder + 1 = {self.n_x + d + 1}")
         # The encoder runs in float32, the precision it was trained in (vflpcd.training.train_koopman):
         # its outputs differ from a float64 evaluation by ~1e-7, and it costs a third of the time.
+        # The weights are read-only, so these copies cannot fall out of step with them.
         self._w32 = [W.astype(np.float32) for W in self.enc_weights]
         self._b32 = [b.astype(np.float32) for b in self.enc_biases]
 
