@@ -161,6 +161,15 @@ class ReferencePath:
         t = np.stack([np.interp(s, self.s, self.tangents[:, j]) for j in range(self.dim)], axis=-1)
         return t / np.linalg.norm(t, axis=-1, keepdims=True)
 
+    def anchors(self, pts: np.ndarray, s0: float, s1: float, spacing: float = 0.5) -> np.ndarray:
+        """The path's points (K, d) nearest to pts (K, d) within the stretch [s0, s1]: found on the
+        stretch's chords every ``spacing`` m (cheap), then taken on the path itself at the arc length
+        of each foot. A foot on the chords is off the path by up to the chords' sagitta and bends only
+        at their vertices, so a point set that follows the feet would bend every ``spacing`` m and run
+        straight in between; taken on the path, the anchors bend as smoothly as the path does."""
+        s = np.arange(s0, s1, spacing)
+        return self.point_at(feet_arc_lengths(pts, self.point_at(s), s))
+
     def curvature_at(self, s) -> np.ndarray:
         return np.interp(self.wrap_s(np.asarray(s, dtype=float)), self.s, self.curvature)
 
@@ -272,13 +281,29 @@ def feet_on_polyline(pts: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """The nearest point of the polyline through xy (M, d) to each of pts (K, d): (K, d); the batch
     form of ``nearest_on_polyline`` (which stays single-point: the tracking monitor calls it every
     tick, and the batch form costs it 1.7 us more a call)."""
+    i, h = _feet(pts, xy)
+    xy = np.asarray(xy, float)
+    return xy[i] + h[:, None] * (xy[i + 1] - xy[i])
+
+
+def feet_arc_lengths(pts: np.ndarray, xy: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """The parameter s (K,) of the nearest point of the polyline through xy (M, d) to each of pts
+    (K, d), where the polyline's vertices have the parameters s (M,) (interpolated along a segment)."""
+    i, h = _feet(pts, xy)
+    s = np.asarray(s, float)
+    return s[i] + h * (s[i + 1] - s[i])
+
+
+def _feet(pts: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each of pts (K, d): the segment i (K,) of the polyline through xy (M, d) that holds the
+    nearest point and its fraction h (K,) along that segment."""
     pts, xy = np.asarray(pts, float), np.asarray(xy, float)
     a, ab = xy[:-1], np.diff(xy, axis=0)
     w = np.maximum(np.einsum("md,md->m", ab, ab), 1e-12)
     h = np.clip(np.einsum("kmd,md->km", pts[:, None, :] - a[None], ab) / w, 0.0, 1.0)
     feet = a[None] + h[..., None] * ab[None]
     i = np.argmin(((feet - pts[:, None, :]) ** 2).sum(axis=2), axis=1)
-    return feet[np.arange(len(pts)), i]
+    return i, h[np.arange(len(pts)), i]
 
 
 def unit_differences(points: np.ndarray) -> np.ndarray:

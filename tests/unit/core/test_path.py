@@ -3,7 +3,8 @@ import importlib.util
 import numpy as np
 import pytest
 
-from vflpcd.core.path import ReferencePath, progress_delta, unit_differences
+from vflpcd.core.guidance.speed import menger_curvature
+from vflpcd.core.path import ReferencePath, feet_arc_lengths, feet_on_polyline, progress_delta, unit_differences
 
 
 def test_arc_curvature_and_length():
@@ -121,3 +122,20 @@ def test_unit_differences_are_np_gradients_directions():
     pts[5:7] = pts[4]                                       # a standstill: a zero direction, no NaN
     assert np.array_equal(unit_differences(pts), directions(pts)) and not unit_differences(pts)[5].any()
     assert np.array_equal(unit_differences(pts[:2]), directions(pts[:2]))
+
+
+def test_anchors_lie_on_the_path_and_bend_as_it_does():
+    """Points 1.5 m outside a 24 m arc: their feet on the 0.5 m chords bend only at the chords'
+    vertices (their three-point curvature swings by a half of the bend's), the anchors lie on the
+    path (within 1 mm) and bend by the arc's curvature at every point (within 5 %)."""
+    path = ReferencePath.arc([0.0, 24.0], 24.0, -np.pi / 2, 0.5, ds=0.1)
+    a = np.linspace(-np.pi / 2 + 0.1, 0.3, 120)
+    pts = np.column_stack([25.5 * np.cos(a), 24.0 + 25.5 * np.sin(a)])
+    chords = path.point_at(np.arange(0.0, path.length, 0.5))
+    k_feet = menger_curvature(feet_on_polyline(pts, chords))
+    assert np.ptp(k_feet) > 0.5 / 24.0
+    anchors = path.anchors(pts, 0.0, path.length)
+    assert np.all(np.abs(np.hypot(anchors[:, 0], anchors[:, 1] - 24.0) - 24.0) < 1e-3)
+    assert np.allclose(menger_curvature(anchors)[1:-1], 1.0 / 24.0, rtol=0.05)
+    s = feet_arc_lengths(pts, chords, np.arange(0.0, path.length, 0.5))
+    assert np.allclose(path.point_at(s), anchors)

@@ -45,7 +45,7 @@ from vflpcd.core.guidance.speed import arrival_times, plan_speed, smooth_path, s
 from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE, Body, Keepout, disc_gaps, tighten_path
 from vflpcd.core.guidance.trajectory import Trajectory, timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
-from vflpcd.core.path import ReferencePath, feet_on_polyline, nearest_on_polyline
+from vflpcd.core.path import ReferencePath, nearest_on_polyline
 from vflpcd.core.safety.monitors import PlanLimits, check_plan
 
 VIRTUAL_LEAD = np.radians(30.0)  # heading change the virtual obstacle gives before R_actl
@@ -257,7 +257,7 @@ class PlannerBase:
         p = self.params
         if p.tight_length <= 0.0 or not (prepared.statics or movers):
             return None
-        stretch = self.path.point_at(np.arange(prepared.s0 - 5.0, prepared.s_end + 5.0, 0.5))
+        anchor = partial(self.path.anchors, s0=prepared.s0 - 5.0, s1=prepared.s_end + 5.0)
         shifts = (0.0,) if p.tight_mover_window <= 0.0 else (-p.tight_mover_window, 0.0, p.tight_mover_window)
         moving = [Keepout(o, self.tight_clearance(o), dt) for o in movers for dt in shifts]
         keepouts = [Keepout(o, self.tight_clearance(o)) for o in prepared.statics] + moving
@@ -265,7 +265,7 @@ class PlannerBase:
         if moving:      # the field's timed path may pass a mover closer than the clearance: no closer than it
             floor = min(0.0, self.least_gap(timed_trajectory(xy, s, v, t0, self.dt), moving)) - CLEAR_TOLERANCE
         for _ in range(MOVER_PASSES if moving else 1):
-            out = tighten_path(xy, times, partial(feet_on_polyline, xy=stretch), self.kappa_max, self.body, keepouts,
+            out = tighten_path(xy, times, anchor, self.kappa_max, self.body, keepouts,
                                p.tight_length, heading, goal, field_times, self._loops().active_set)
             if out is None:
                 return None

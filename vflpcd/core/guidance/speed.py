@@ -27,16 +27,6 @@ def menger_curvature(xy: np.ndarray) -> np.ndarray:
     return np.concatenate([k[:1], k, k[-1:]])
 
 
-def signed_curvature(xy: np.ndarray) -> np.ndarray:
-    """Menger curvature with the sign of the turn (left positive), (K,)."""
-    k = menger_curvature(xy)
-    if len(xy) < 3:
-        return k
-    d1, d2 = xy[1:-1] - xy[:-2], xy[2:] - xy[1:-1]
-    sgn = np.sign(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
-    return k * np.concatenate([sgn[:1], sgn, sgn[-1:]])
-
-
 def plan_speed(xy: np.ndarray, v_desired: float, a_lat_max: float, a_accel: float, a_decel: float,
                v_start: float, v_end: float | None = None,
                kappa_cap: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
