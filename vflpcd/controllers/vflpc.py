@@ -24,10 +24,17 @@ MODELS = {"ground": "dynamic_bicycle.npz", "aerial": "quadrotor.npz"}
 BODY_DISCS = 6   # covering discs of the car body for the tight path (6: 8 cm over the sides of the SUV)
 
 
-def planner_body(footprint) -> Body:
-    """The body the guidance's tight path keeps clear: the footprint's covering discs."""
-    f = footprint.with_discs(BODY_DISCS)
-    return Body(np.asarray(f.offsets, float), float(f.radius))
+def planner_body(scenario) -> Body:
+    """The body the guidance's tight path keeps clear: the footprint's covering discs, yawed in
+    bends by the car's steady slip angle (``Body.rear_axle``, ``Body.slip_gain``)."""
+    f = scenario.footprint.with_discs(BODY_DISCS)
+    if scenario.platform != "ground":
+        return Body(np.asarray(f.offsets, float), float(f.radius))
+    from vflpcd.config.vehicles import BicycleConfig
+
+    p = BicycleConfig.load(scenario.params).params
+    slip_gain = p.m * p.lf / (2.0 * p.Car * p.wheelbase)       # m lf / (C_r L), C_r = 2 Car (per tyre)
+    return Body(np.asarray(f.offsets, float), float(f.radius), float(p.lr), float(slip_gain))
 
 
 def load_params(platform: str, path: str | Path | None = None) -> VFLPCParams:
@@ -90,7 +97,7 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
     planner_cls = GuidancePlanner if scenario.dim == 2 else GuidancePlanner3D
     planner = planner_cls(scenario.path, scenario.guidance, scenario.v_desired, scenario.a_lat_max,
                           scenario.footprint.radius, model.dt, kappa_limit=curvature_limit(scenario),
-                          body=planner_body(scenario.footprint), loops=guidance_loops)
+                          body=planner_body(scenario), loops=guidance_loops)
     planner.warm()          # the compiled loops loaded now, not in the first tick's plan
     if compensation and not np.isclose(scenario.control_period, model.dt):
         raise ValueError(f"GP compensation learns one-model-step transitions: scenario {scenario.name!r} runs "

@@ -19,7 +19,8 @@ the planner's window for the mover's uncertain timing), with the start and its h
 goal) kept.
 
 The body is its covering discs (``vflpcd.core.footprint``): disc j of radius r sits o_j along the
-path's tangent t_k from x_k. The signed distance of a convex shape is convex, so with n its
+body's axis t_k from x_k (the path's tangent, turned out of the road's bend by the car's slip angle:
+``Body.axes``). The signed distance of a convex shape is convex, so with n its
 gradient at the disc centre c = x_k + o_j t_k the half-plane n'x_k >= n'x_k^0 + r + clearance -
 sd(c) (t_k and the linearisation point x_k^0 held) keeps that disc clear: one supporting
 half-plane per point and keepout, the most binding one kept, re-taken at the new points for a few
@@ -40,7 +41,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from vflpcd.core.guidance.fairing import FAIR_MIN, OUTER_ROUNDS, SPACING, resample, solve_active_set
-from vflpcd.core.guidance.speed import menger_curvature
+from vflpcd.core.guidance.speed import heading_curvature, menger_curvature
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import unit_differences
 
@@ -53,10 +54,36 @@ STIFFER = 4.0           # l is doubled up to this many times the configured leng
 @dataclass(frozen=True)
 class Body:
     """The robot as covering discs: centres ``offsets`` (n,) m along its heading from the
-    reference point, each of ``radius`` m."""
+    reference point, each of ``radius`` m. ``rear_axle``: how far the axle that does not steer lies
+    behind the reference point (a car's CoG to its rear axle, lr; 0: the heading is the path's
+    tangent), ``slip_gain`` K (s^2/m) how the tyres' slip takes that lever down with the speed v.
+    A car whose reference point follows a bend of curvature kappa is yawed out of the bend by its
+    steady slip angle beta = asin(kappa (lr - K v^2)) (the linear single-track model,
+    K = m lf / (C_r L) with C_r the rear axle's cornering stiffness; K = 0 is the kinematic
+    bicycle), so its front swings out of the bend and its rear in: 0.25 m at the SUV's front bumper
+    on a 15 m ring at 5 m/s."""
 
     offsets: np.ndarray
     radius: float
+    rear_axle: float = 0.0
+    slip_gain: float = 0.0
+
+    def axes(self, x: np.ndarray, bend: np.ndarray | None = None, speed: np.ndarray | None = None) -> np.ndarray:
+        """Unit body axes (K, d) at the points x (K, d) of a path the reference point follows: the
+        path's tangents, turned by -beta in the plane where ``bend`` (K,) gives the curvature kappa
+        of the road's bend at each point and ``speed`` (K,) the speed there (None: 0) (None: the
+        tangents). The road's bend, not the path's own: a swerve past an obstacle lasts too short
+        for the slip to build up (with the path's own curvature the tight detours of the road suite
+        came out 0.05-0.25 m wider than the cars' measured clearances needed), a ring or a bend is
+        driven at its steady slip."""
+        t = unit_differences(x)
+        if bend is None or self.rear_axle == 0.0 or x.shape[1] != 2:
+            return t
+        v2 = 0.0 if speed is None else np.asarray(speed, float) ** 2
+        lever = np.maximum(self.rear_axle - self.slip_gain * v2, 0.0)
+        beta = np.arcsin(np.clip(lever * np.asarray(bend, float), -1.0, 1.0))
+        c, s = np.cos(beta), np.sin(beta)
+        return np.column_stack([c * t[:, 0] + s * t[:, 1], -s * t[:, 0] + c * t[:, 1]])
 
 
 @dataclass(frozen=True)
@@ -97,12 +124,14 @@ def _within(k: Keepout, body: Body, x: np.ndarray, times: np.ndarray, beyond: fl
     return np.flatnonzero(np.einsum("ij,ij->i", d := x - k.centres(times), d) <= far * far)
 
 
-def disc_gaps(x: np.ndarray, body: Body, keepouts: Sequence[Keepout], times: np.ndarray | None = None) -> np.ndarray:
+def disc_gaps(x: np.ndarray, body: Body, keepouts: Sequence[Keepout], times: np.ndarray | None = None,
+              bend: np.ndarray | None = None, speed: np.ndarray | None = None) -> np.ndarray:
     """Per point of x (K, d), reached at ``times`` (K,) (only moving keepouts need them), the least
     sd(disc centre) - radius - clearance over the discs and keepouts (K,): negative where a disc is
     closer than the clearance. A keepout whose shape's bounding circle keeps every disc of a point
-    beyond the clearance is not evaluated there (its gap is positive); +inf where none is."""
-    t = unit_differences(x)
+    beyond the clearance is not evaluated there (its gap is positive); +inf where none is.
+    ``bend``, ``speed``: the road's curvature and the speed at each point (``Body.axes``)."""
+    t = body.axes(x, bend, speed)
     times = np.zeros(len(x)) if times is None else times
     gap = np.full(len(x), np.inf)
     for k in keepouts:
@@ -116,17 +145,19 @@ def disc_gaps(x: np.ndarray, body: Body, keepouts: Sequence[Keepout], times: np.
 
 
 def _disc_centres(x: np.ndarray, t: np.ndarray, body: Body) -> np.ndarray:
-    """The body's disc centres (J K, d) at points x (K, d) with unit tangents t (K, d), disc by
+    """The body's disc centres (J K, d) at points x (K, d) with unit body axes t (K, d), disc by
     disc (J discs): one evaluation of a shape's distance takes them all."""
     return (x[None] + body.offsets[:, None, None] * t[None]).reshape(-1, x.shape[1])
 
 
 def body_half_planes(x: np.ndarray, times: np.ndarray, body: Body, keepouts: Sequence[Keepout],
-                     slack: np.ndarray | float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                     slack: np.ndarray | float = 0.0, bend: np.ndarray | None = None,
+                     speed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per point the most binding disc half-plane n_k' x >= b_k (module docstring) for the
     clearances less ``slack`` (K,) m, (n (K, d), b (K,)); n_k = 0, b_k = -inf where every disc is
-    farther than ``REACH`` beyond its clearance."""
-    t = unit_differences(x)
+    farther than ``REACH`` beyond its clearance. ``bend``, ``speed``: the road's curvature and the
+    speed at each point (``Body.axes``)."""
+    t = body.axes(x, bend, speed)
     n = np.zeros_like(x)
     b = np.full(len(x), -np.inf)
     need = np.full(len(x), -np.inf)          # b_k - n_k' x_k: how far the point must move along n_k
@@ -163,17 +194,30 @@ def tighten_path(xy: np.ndarray, times: np.ndarray, anchor: Callable[[np.ndarray
     if heading is not None:  # the second point keeps the start heading
         r[1] = r[0] + SPACING * np.asarray(heading, float) / np.linalg.norm(heading)
     road = anchor(r)
+    bend = heading_curvature(road) if road.shape[1] == 2 else None    # the road's bend: the body's slip (Body.axes)
+    speed = _speeds(r, t)
     t_field = t if field_times is None else resample(xy, field_times, SPACING)[1]
-    slack = -np.minimum(disc_gaps(r, body, keepouts, t_field), 0.0)   # where the field's path comes closer, no closer
+    slack = -np.minimum(disc_gaps(r, body, keepouts, t_field, bend, speed), 0.0)   # where the field's path comes closer, no closer
     fair = max(float(length), FAIR_MIN)
     while fair <= STIFFER * max(float(length), FAIR_MIN) * (1 + 1e-9):
         eps = (SPACING / fair) ** 4
         x, active = r, None
         for _ in range(OUTER_ROUNDS + 1):
-            n, b = body_half_planes(x, t, body, keepouts, slack)
+            n, b = body_half_planes(x, t, body, keepouts, slack, bend, speed)
             x, active = solve_active_set(road, eps, n, b, pin_end, active, shape=road, pins=r, loop=loop)
-        clear = np.all(disc_gaps(x, body, keepouts, t)[2:] + slack[2:] > -CLEAR_TOLERANCE)
+        clear = np.all(disc_gaps(x, body, keepouts, t, bend, speed)[2:] + slack[2:] > -CLEAR_TOLERANCE)
         if clear and np.max(menger_curvature(x)) <= kappa_max:
             return x, t
         fair *= 2.0
     return None
+
+
+def _speeds(x: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """The speed (K,) at the points x (K, d) reached at times (K,): the chords over the time steps
+    (0 where the time does not advance)."""
+    if len(x) < 2:
+        return np.zeros(len(x))
+    ds = np.hypot(*np.diff(x, axis=0).T) if x.shape[1] == 2 else np.linalg.norm(np.diff(x, axis=0), axis=1)
+    dt = np.diff(times)
+    v = np.where(dt > 0.0, ds / np.where(dt > 0.0, dt, 1.0), 0.0)
+    return np.concatenate([v[:1], 0.5 * (v[:-1] + v[1:]), v[-1:]])

@@ -6,10 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vflpcd.core.guidance.speed import arrival_times, menger_curvature
+from vflpcd.core.guidance.speed import CURVATURE_WINDOW, arrival_times, menger_curvature, windowed_curvature
 
 
-KAPPA_WINDOW = 1.0   # m: the reference's curvature is the heading's change over this much arc length (2-D)
 SERIES = ("psi", "kappa", "s", "v", "omega", "accel", "pos")   # what ``Trajectory.sample`` interpolates
 STOPPED = ("v", "omega", "accel")                               # 0 after the end: the reference stands
 
@@ -56,22 +55,6 @@ class Trajectory:
         return out
 
 
-def windowed_curvature(heading: np.ndarray, s: np.ndarray, window: float) -> np.ndarray:
-    """Signed curvature (K,) of a planar path from its unwrapped heading (K,) at arc lengths s (K,):
-    the heading's change over ``window`` m of arc length centred on each point (one-sided, shorter,
-    at the ends). The reference's yaw rate v kappa is what the horizon's model inverts for the
-    feed-forward steering, step by step: the curvature of three neighbouring points (Menger's)
-    of a path resampled every 0.25 m swings by 0.05 1/m from point to point where the path
-    zig-zags by a millimetre (a fairing's or tight path's solution, an anchor on a chord), i.e.
-    0.3 rad/s at 6 m/s and a steering feed-forward that jumps by more than the steering's rate
-    limit every step; over a metre the same path bends as smoothly as it looks."""
-    if len(s) < 2:
-        return np.zeros_like(s)
-    lo = np.clip(s - 0.5 * window, s[0], s[-1])
-    hi = np.clip(s + 0.5 * window, s[0], s[-1])
-    return (np.interp(hi, s, heading) - np.interp(lo, s, heading)) / np.maximum(hi - lo, 1e-9)
-
-
 def timed_trajectory(xy: np.ndarray, s: np.ndarray, v: np.ndarray, t0: float, dt: float) -> Trajectory:
     """Sample a speed-planned path (points xy (K, d), arc lengths s (K,), speeds v (K,)) every dt
     seconds from t0 (points that are never reached, after a stop, are dropped)."""
@@ -81,7 +64,7 @@ def timed_trajectory(xy: np.ndarray, s: np.ndarray, v: np.ndarray, t0: float, dt
     t = np.arange(0.0, t_s[-1] + 1e-9, dt)
     d = np.gradient(xy, axis=0) if len(xy) > 1 else np.array([[1.0, 0.0] + [0.0] * (xy.shape[1] - 2)])
     heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
-    kappa = windowed_curvature(heading, s, KAPPA_WINDOW) if xy.shape[1] == 2 else menger_curvature(xy)
+    kappa = windowed_curvature(heading, s, CURVATURE_WINDOW) if xy.shape[1] == 2 else menger_curvature(xy)
     vt, kt = np.interp(t, t_s, v), np.interp(t, t_s, kappa)
     pos = np.column_stack([np.interp(t, t_s, xy[:, j]) for j in range(xy.shape[1])])
     return Trajectory(t=t + t0, pos=pos, psi=np.interp(t, t_s, heading), v=vt, omega=vt * kt,

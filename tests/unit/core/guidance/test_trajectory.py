@@ -4,7 +4,8 @@ curvature is a path's bend, not its point-to-point zig-zag."""
 import numpy as np
 
 from vflpcd.core.guidance.speed import menger_curvature
-from vflpcd.core.guidance.trajectory import KAPPA_WINDOW, SERIES, timed_trajectory, windowed_curvature
+from vflpcd.core.guidance.speed import CURVATURE_WINDOW, windowed_curvature
+from vflpcd.core.guidance.trajectory import SERIES, timed_trajectory
 
 
 def test_sampling_some_series_gives_those_of_sampling_all():
@@ -45,5 +46,5 @@ def test_the_references_curvature_ignores_a_millimetre_zig_zag():
 
 def test_windowed_curvature_of_a_straight_and_of_too_few_points():
     s = np.linspace(0.0, 10.0, 41)
-    assert np.all(windowed_curvature(np.full(41, 0.3), s, KAPPA_WINDOW) == 0.0)
-    assert windowed_curvature(np.array([0.1]), np.array([0.0]), KAPPA_WINDOW).shape == (1,)
+    assert np.all(windowed_curvature(np.full(41, 0.3), s, CURVATURE_WINDOW) == 0.0)
+    assert windowed_curvature(np.array([0.1]), np.array([0.0]), CURVATURE_WINDOW).shape == (1,)
