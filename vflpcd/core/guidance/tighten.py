@@ -77,7 +77,7 @@ class Body:
         came out 0.05-0.25 m wider than the cars' measured clearances needed), a ring or a bend is
         driven at its steady slip."""
         t = unit_differences(x)
-        if bend is None or self.rear_axle == 0.0 or x.shape[1] != 2:
+        if bend is None or self.rear_axle == 0.0 or x.shape[1] != 2 or not np.any(bend):
             return t
         v2 = 0.0 if speed is None else np.asarray(speed, float) ** 2
         lever = np.maximum(self.rear_axle - self.slip_gain * v2, 0.0)
