@@ -37,7 +37,7 @@ from scipy.linalg import LinAlgError
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from vflpcd.core.guidance.active_set_kernel import dual_step
-from vflpcd.core.guidance.speed import menger_curvature
+from vflpcd.core.guidance.speed import arc_lengths, menger_curvature
 
 FAIR_MIN, FAIR_MAX = 2.0, 64.0  # fairing length l, m
 HEADING_TOLERANCE = np.radians(5.0)  # a planned start direction further off the robot's heading is faired
@@ -76,7 +76,7 @@ class Region:
 
 def resample(xy: np.ndarray, times: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     """Points (K, d) and their times (K,) resampled at arc-length spacing h (both ends kept)."""
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    s = arc_lengths(xy)
     n = max(int(np.ceil(s[-1] / h)), 6)
     si = np.linspace(0.0, s[-1], n + 1)
     pts = np.column_stack([np.interp(si, s, xy[:, j]) for j in range(xy.shape[1])])

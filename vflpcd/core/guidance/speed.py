@@ -45,14 +45,25 @@ def windowed_curvature(heading: np.ndarray, s: np.ndarray, window: float) -> np.
     return (np.interp(hi, s, heading) - np.interp(lo, s, heading)) / np.maximum(hi - lo, 1e-9)
 
 
-def heading_curvature(xy: np.ndarray, window: float = CURVATURE_WINDOW) -> np.ndarray:
-    """``windowed_curvature`` of a planar polyline (K, 2) from its points (K,): tangents by central
-    differences, arc length by the chords."""
+def arc_lengths(xy: np.ndarray) -> np.ndarray:
+    """Arc length (K,) at each point of a polyline (K, d), by its chords (0 at the first)."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+
+
+def path_heading(xy: np.ndarray) -> np.ndarray:
+    """Unwrapped yaw (K,) of a polyline (K, d >= 2) in the horizontal plane: its tangents by central
+    differences (one-sided at the ends); 0 for a single point."""
     if len(xy) < 2:
         return np.zeros(len(xy))
     d = np.gradient(xy, axis=0)
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
-    return windowed_curvature(np.unwrap(np.arctan2(d[:, 1], d[:, 0])), s, window)
+    return np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+
+
+def heading_curvature(xy: np.ndarray, window: float = CURVATURE_WINDOW) -> np.ndarray:
+    """``windowed_curvature`` of a planar polyline (K, 2) from its points."""
+    if len(xy) < 2:
+        return np.zeros(len(xy))
+    return windowed_curvature(path_heading(xy), arc_lengths(xy), window)
 
 
 def plan_speed(xy: np.ndarray, v_desired: float, a_lat_max: float, a_accel: float, a_decel: float,
@@ -65,7 +76,7 @@ def plan_speed(xy: np.ndarray, v_desired: float, a_lat_max: float, a_accel: floa
     v_end the speed required at the last point (None: free). ``kappa_cap``: the curvature the
     centripetal limit takes at most (a path that its fairing will bring within it).
     """
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    s = arc_lengths(xy)
     k = menger_curvature(xy)
     kappa = np.maximum(k, np.maximum(np.roll(k, 1), np.roll(k, -1)))
     kappa[0], kappa[-1] = max(k[0], k[min(1, len(k) - 1)]), max(k[-1], k[max(len(k) - 2, 0)])

@@ -41,7 +41,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from vflpcd.core.guidance.fairing import FAIR_MIN, OUTER_ROUNDS, SPACING, resample, solve_active_set
-from vflpcd.core.guidance.speed import heading_curvature, menger_curvature
+from vflpcd.core.guidance.speed import arc_lengths, heading_curvature, menger_curvature
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import unit_differences
 
@@ -68,6 +68,11 @@ class Body:
     rear_axle: float = 0.0
     slip_gain: float = 0.0
 
+    @property
+    def slips(self) -> bool:
+        """Whether the body's axis turns in a bend (a car with a rear axle behind its reference point)."""
+        return self.rear_axle > 0.0
+
     def axes(self, x: np.ndarray, bend: np.ndarray | None = None, speed: np.ndarray | None = None) -> np.ndarray:
         """Unit body axes (K, d) at the points x (K, d) of a path the reference point follows: the
         path's tangents, turned by -beta in the plane where ``bend`` (K,) gives the curvature kappa
@@ -77,7 +82,7 @@ class Body:
         came out 0.05-0.25 m wider than the cars' measured clearances needed), a ring or a bend is
         driven at its steady slip."""
         t = unit_differences(x)
-        if bend is None or self.rear_axle == 0.0 or x.shape[1] != 2 or not np.any(bend):
+        if bend is None or not self.slips or x.shape[1] != 2 or not np.any(bend):
             return t
         v2 = 0.0 if speed is None else np.asarray(speed, float) ** 2
         lever = np.maximum(self.rear_axle - self.slip_gain * v2, 0.0)
@@ -194,8 +199,7 @@ def tighten_path(xy: np.ndarray, times: np.ndarray, anchor: Callable[[np.ndarray
     if heading is not None:  # the second point keeps the start heading
         r[1] = r[0] + SPACING * np.asarray(heading, float) / np.linalg.norm(heading)
     road = anchor(r)
-    bend = heading_curvature(road) if road.shape[1] == 2 else None    # the road's bend: the body's slip (Body.axes)
-    speed = _speeds(r, t)
+    bend, speed = (heading_curvature(road), _speeds(r, t)) if body.slips else (None, None)   # Body.axes
     t_field = t if field_times is None else resample(xy, field_times, SPACING)[1]
     slack = -np.minimum(disc_gaps(r, body, keepouts, t_field, bend, speed), 0.0)   # where the field's path comes closer, no closer
     fair = max(float(length), FAIR_MIN)
@@ -217,7 +221,7 @@ def _speeds(x: np.ndarray, times: np.ndarray) -> np.ndarray:
     (0 where the time does not advance)."""
     if len(x) < 2:
         return np.zeros(len(x))
-    ds = np.hypot(*np.diff(x, axis=0).T) if x.shape[1] == 2 else np.linalg.norm(np.diff(x, axis=0), axis=1)
+    ds = np.diff(arc_lengths(x))
     dt = np.diff(times)
     v = np.where(dt > 0.0, ds / np.where(dt > 0.0, dt, 1.0), 0.0)
     return np.concatenate([v[:1], 0.5 * (v[:-1] + v[1:]), v[-1:]])

@@ -6,7 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vflpcd.core.guidance.speed import CURVATURE_WINDOW, arrival_times, menger_curvature, windowed_curvature
+from vflpcd.core.guidance.speed import (CURVATURE_WINDOW, arrival_times, menger_curvature, path_heading,
+                                       windowed_curvature)
 
 
 SERIES = ("psi", "kappa", "s", "v", "omega", "accel", "pos")   # what ``Trajectory.sample`` interpolates
@@ -62,8 +63,7 @@ def timed_trajectory(xy: np.ndarray, s: np.ndarray, v: np.ndarray, t0: float, dt
     finite = np.isfinite(t_s)
     xy, s, v, t_s = xy[finite], s[finite], v[finite], t_s[finite]
     t = np.arange(0.0, t_s[-1] + 1e-9, dt)
-    d = np.gradient(xy, axis=0) if len(xy) > 1 else np.array([[1.0, 0.0] + [0.0] * (xy.shape[1] - 2)])
-    heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    heading = path_heading(xy)
     kappa = windowed_curvature(heading, s, CURVATURE_WINDOW) if xy.shape[1] == 2 else menger_curvature(xy)
     vt, kt = np.interp(t, t_s, v), np.interp(t, t_s, kappa)
     pos = np.column_stack([np.interp(t, t_s, xy[:, j]) for j in range(xy.shape[1])])

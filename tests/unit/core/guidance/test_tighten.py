@@ -11,7 +11,7 @@ from vflpcd.config.scenarios import default_guidance
 from vflpcd.core.guidance.planner import GuidancePlanner
 from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE, Body, Keepout, disc_gaps, tighten_path
 from vflpcd.core.obstacles import ObstacleState
-from vflpcd.core.path import ReferencePath, feet_on_polyline
+from vflpcd.core.path import ReferencePath, feet_on_polyline, unit_differences
 from vflpcd.core.shapes import Box, Circle
 
 CAR = Body(offsets=np.array([-1.2, 0.0, 1.2]), radius=1.1)
@@ -129,6 +129,8 @@ def test_the_body_is_yawed_out_of_a_bend_by_the_plants_steady_slip():
             x = np.column_stack([r * np.sin(a), np.sign(kappa) * r * (1.0 - np.cos(a))])
             axes = body.axes(x, np.full(len(x), kappa), np.full(len(x), v))
             tangents = body.axes(x)
+            assert np.array_equal(tangents, unit_differences(x))
+            assert np.array_equal(body.axes(x, np.zeros(len(x)), np.full(len(x), v)), tangents)
             turn = np.arctan2(tangents[:, 0] * axes[:, 1] - tangents[:, 1] * axes[:, 0],
                               np.einsum("ij,ij->i", tangents, axes))
             assert np.allclose(turn, -slip, rtol=0.1), (v, delta, turn[10], slip)

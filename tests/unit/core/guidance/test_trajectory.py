@@ -3,8 +3,7 @@ curvature is a path's bend, not its point-to-point zig-zag."""
 
 import numpy as np
 
-from vflpcd.core.guidance.speed import menger_curvature
-from vflpcd.core.guidance.speed import CURVATURE_WINDOW, windowed_curvature
+from vflpcd.core.guidance.speed import CURVATURE_WINDOW, menger_curvature, windowed_curvature
 from vflpcd.core.guidance.trajectory import SERIES, timed_trajectory
 
 
