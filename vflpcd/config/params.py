@@ -8,6 +8,7 @@ from dataclasses import fields, replace
 
 import numpy as np
 
+from vflpcd.base.errors import ConfigError
 from vflpcd.base.tomlread import Table
 from vflpcd.core.guidance.params import GuidanceParams, VirtualObstacleSpec
 from vflpcd.core.vflpc import VFLPCParams
@@ -52,9 +53,20 @@ def _bounds(t: Table, key: str, default: tuple[float, float]) -> tuple[float, fl
 
 
 def vflpc_params(root: Table, platform: str) -> VFLPCParams:
-    root.check_known({"cost", "horizon", "solver", "features", "barrier", "replan", "compensation"})
+    root.check_known({"cost", "horizon", "solver", "features", "barrier", "replan", "compensation", "vehicle"})
     cost, hor, sol = root.table("cost"), root.table("horizon"), root.table("solver")
     feat, bar, rep = root.table("features"), root.table("barrier"), root.table("replan")
+    vehicle = root.table("vehicle", {})
+    vehicle.check_known({"params"})
+    if platform == "ground":            # the car's parameter set, named here when the plant file lacks it
+        from vflpcd.config.vehicles import BicycleConfig
+
+        try:
+            BicycleConfig.load(vehicle.string("params", "nominal"))
+        except ConfigError as exc:
+            if exc.field.startswith("params."):
+                raise vehicle.error("params", exc.message) from None
+            raise
     cost.check_known({"q_ground", "r_ground", "r_rate_ground", "q_aerial", "r_aerial", "r_rate_aerial", "q_lift",
                       "gamma", "r_rate_threat_ground", "r_rate_threat_aerial",
                       "r_rate_light_ground", "r_rate_light_aerial", "light_hold", "light_speeds"})
@@ -116,4 +128,5 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
                R_rate_threat=None if r_threat is None else np.diag(r_threat),
                R_rate_light=None if r_light is None else np.diag(r_light),
                light_hold=cost.number("light_hold", 2.0, min=0.0),
-               light_speeds=(float(light_speeds[0]), float(light_speeds[1])))
+               light_speeds=(float(light_speeds[0]), float(light_speeds[1])),
+               vehicle_params=vehicle.string("params", "nominal"))

@@ -24,15 +24,18 @@ MODELS = {"ground": "dynamic_bicycle.npz", "aerial": "quadrotor.npz"}
 BODY_DISCS = 6   # covering discs of the car body for the tight path (6: 8 cm over the sides of the SUV)
 
 
-def planner_body(scenario) -> Body:
-    """The body the guidance's tight path keeps clear: the footprint's covering discs, yawed in
-    bends by the car's steady slip angle (``Body.rear_axle``, ``Body.slip_gain``)."""
+def planner_body(scenario, param_set: str = "nominal") -> Body:
+    """The body the guidance's tight path keeps clear and the reference's heading follows: the
+    footprint's covering discs, yawed in bends by the car's steady slip angle (``Body.rear_axle``,
+    ``Body.slip_gain``) with the parameter set ``param_set`` of config/plants/dynamic_bicycle.toml:
+    what the controller knows of the car ([vehicle] params of vflpc.toml), not the simulated plant's
+    own set (the "exact" car of the model-uncertainty runs)."""
     f = scenario.footprint.with_discs(BODY_DISCS)
     if scenario.platform != "ground":
         return Body(np.asarray(f.offsets, float), float(f.radius))
     from vflpcd.config.vehicles import BicycleConfig
 
-    p = BicycleConfig.load(scenario.params).params
+    p = BicycleConfig.load(param_set).params
     slip_gain = p.m * p.lf / (2.0 * p.Car * p.wheelbase)       # m lf / (C_r L), C_r = 2 Car (per tyre)
     return Body(np.asarray(f.offsets, float), float(f.radius), float(p.lr), float(slip_gain))
 
@@ -97,7 +100,7 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
     planner_cls = GuidancePlanner if scenario.dim == 2 else GuidancePlanner3D
     planner = planner_cls(scenario.path, scenario.guidance, scenario.v_desired, scenario.a_lat_max,
                           scenario.footprint.radius, model.dt, kappa_limit=curvature_limit(scenario),
-                          body=planner_body(scenario), loops=guidance_loops)
+                          body=planner_body(scenario, params.vehicle_params), loops=guidance_loops)
     planner.warm()          # the compiled loops loaded now, not in the first tick's plan
     if compensation and not np.isclose(scenario.control_period, model.dt):
         raise ValueError(f"GP compensation learns one-model-step transitions: scenario {scenario.name!r} runs "

@@ -48,6 +48,7 @@ from vflpcd.core.control.rate import RateForm
 from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout, to_window_frame
 from vflpcd.core.guidance.implicit import GuidanceError
+from vflpcd.core.guidance.speed import heading_curvature
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.norms import vector_norm
 from vflpcd.core.path import nearest_on_polyline, unit_differences
@@ -164,6 +165,7 @@ class VFLPCParams:
     gp_n_max: int = 400
     gp_linearisation: str = "nominal"
     gp_bounds: tuple[tuple[float, float], ...] = ((1e-6, 0.1), (0.3, 10.0), (1e-6, 1e-3))   # sf2, ell, sn2
+    vehicle_params: str = "nominal"     # the car's parameter set the controller knows (its body's slip)
 
 
 
@@ -248,6 +250,9 @@ class VFLPC(ControllerBase):
         self._observe_every = max(1, int(round(every)))
         self.N = max(1, int(round(params.horizon_s / self.dt)))
         self._horizon_offsets = self.dt * np.arange(self.N + 1)     # tau dt, tau = 0 .. N
+        self._body = planner.body
+        self._slip_of: tuple | None = None        # (plan, its slip series): _road_slip
+        self._road_bend: np.ndarray | None = None  # the route's bend at its points: _road_slip
         self.dim = planner.dim
         names, layout = model.state_names, PoseLayout.of(model.state_names)
         self._pos_index = np.array(layout.position)
@@ -534,13 +539,21 @@ class VFLPC(ControllerBase):
         self._asked = (job, _velocities(job.obstacles), self.replan_failures)
 
     def _reference(self, t: float) -> np.ndarray:
-        """World reference states (N + 1, n_x) at t + tau dt, in the model's state order."""
+        """World reference states (N + 1, n_x) at t + tau dt, in the model's state order. A car's
+        heading and body velocities are those it has on the path at its steady slip in the road's
+        bends (``_road_slip``): the path gives the course, the car's yaw lies beta off it."""
         planar = self.errors.layout.kind == "planar"
         series = ("psi", "v", "omega", "pos") if planar else ("v", "pos")
-        smp = self._plan.trajectory.sample(t + self._horizon_offsets, series)
+        times = t + self._horizon_offsets
+        smp = self._plan.trajectory.sample(times, series)
         if planar:
-            cols = {"X": smp["pos"][:, 0], "Y": smp["pos"][:, 1], "psi": smp["psi"], "yaw": smp["psi"],
-                    "vx": smp["v"], "omega": smp["omega"]}
+            psi, vx, vy = smp["psi"], smp["v"], 0.0
+            slip = self._road_slip()
+            if slip is not None:
+                beta = np.interp(times, self._plan.trajectory.t, slip)
+                psi, vx, vy = psi - beta, vx * np.cos(beta), vx * np.sin(beta)
+            cols = {"X": smp["pos"][:, 0], "Y": smp["pos"][:, 1], "psi": psi, "yaw": psi,
+                    "vx": vx, "vy": vy, "omega": smp["omega"]}
         else:
             tangent = unit_differences(smp["pos"])
             v = tangent * smp["v"][:, None]
@@ -551,6 +564,30 @@ class VFLPC(ControllerBase):
             if name in cols:
                 out[:, j] = cols[name]
         return out
+
+    def _road_slip(self) -> np.ndarray | None:
+        """The car's steady slip angle beta (rad, ``Body.slip_angle``) at each point of the current
+        plan's trajectory, in the road's bend there (the route's curvature at the same distance along
+        it) at the planned speed; None for a body that does not slip. The road's bend, not the plan's
+        own curvature: with the plan's own, the slip of every swerve entered the reference heading
+        (carsim_avoidance J_MC 1.62 -> 1.87, a supervisor intervention), where a bend held for
+        seconds is driven at its steady slip (racing_track: 0.05 rad at 6 m/s). The road's bend is
+        its heading's change over ``CURVATURE_WINDOW`` of arc (a corner of a polyline road is not a
+        spike), at most the car's curvature limit. Computed once per plan."""
+        plan = self._plan
+        if self._slip_of is not None and self._slip_of[0] is plan:
+            return self._slip_of[1]
+        slip = None
+        if self._body.slips:
+            traj, path = plan.trajectory, self.planner.path
+            if self._road_bend is None:
+                limit = self.planner.kappa_limit
+                self._road_bend = np.clip(heading_curvature(path.points), -limit, limit)
+            s0 = path.arc_length_of(traj.pos[0], self._s)
+            bend = np.interp(path.wrap_s(s0 + traj.s - traj.s[0]), path.s, self._road_bend)
+            slip = self._body.slip_angle(bend, traj.v)
+        self._slip_of = (plan, slip)
+        return slip
 
     def _select_mode(self) -> None:
         """The increment weights of the tick: ``R_rate_threat`` while a mover threatens (the barrier

@@ -73,6 +73,14 @@ class Body:
         """Whether the body's axis turns in a bend (a car with a rear axle behind its reference point)."""
         return self.rear_axle > 0.0
 
+    def slip_angle(self, kappa, speed) -> np.ndarray:
+        """The steady slip angle beta = asin(kappa (lr - K v^2)) (rad; the lever lr - K v^2 held at 0
+        or above) of a car whose reference point drives a curvature kappa (1/m, left positive) at
+        speed v (m/s): its velocity points beta to the left of its heading (0 for a body that does
+        not slip)."""
+        lever = np.maximum(self.rear_axle - self.slip_gain * np.asarray(speed, float) ** 2, 0.0)
+        return np.arcsin(np.clip(lever * np.asarray(kappa, float), -1.0, 1.0))
+
     def axes(self, x: np.ndarray, bend: np.ndarray | None = None, speed: np.ndarray | None = None) -> np.ndarray:
         """Unit body axes (K, d) at the points x (K, d) of a path the reference point follows: the
         path's tangents, turned by -beta in the plane where ``bend`` (K,) gives the curvature kappa
@@ -84,9 +92,7 @@ class Body:
         t = unit_differences(x)
         if bend is None or not self.slips or x.shape[1] != 2 or not np.any(bend):
             return t
-        v2 = 0.0 if speed is None else np.asarray(speed, float) ** 2
-        lever = np.maximum(self.rear_axle - self.slip_gain * v2, 0.0)
-        beta = np.arcsin(np.clip(lever * np.asarray(bend, float), -1.0, 1.0))
+        beta = self.slip_angle(bend, 0.0 if speed is None else speed)
         c, s = np.cos(beta), np.sin(beta)
         return np.column_stack([c * t[:, 0] + s * t[:, 1], -s * t[:, 0] + c * t[:, 1]])
 

@@ -77,6 +77,14 @@ def test_linearisation_choice_is_checked():
         vflpc_params(_table({"compensation": {"linearisation": "exact"}}), "ground")
 
 
+def test_the_vehicle_parameter_set_is_checked_where_it_is_named():
+    assert load_params("ground").vehicle_params == "nominal"
+    assert vflpc_params(_table({"vehicle": {"params": "exact"}}), "ground").vehicle_params == "exact"
+    with pytest.raises(ConfigError, match="no such parameter set") as info:
+        vflpc_params(_table({"vehicle": {"params": "rover"}}), "ground")
+    assert info.value.field == "vehicle.params" and str(info.value.file).endswith("vflpc.toml")
+
+
 class ConstantGP:
     """A GP stand-in: mean d0 everywhere, Jacobian J everywhere."""
 
