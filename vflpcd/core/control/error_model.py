@@ -34,7 +34,7 @@ import scipy.linalg as sl
 
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.dynamics.compensation import KoopmanCompensation
-from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout, to_window_frame
+from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout, window_in_place
 from vflpcd.core.dynamics.sparse_gp import FITCGP
 
 
@@ -101,8 +101,9 @@ class ErrorModel:
 
     def frame(self, state: np.ndarray, reference: np.ndarray) -> TickFrame:
         """Window frame of the world state (n_x,) and world reference (N + 1, n_x), lifted."""
-        window = to_window_frame(np.vstack([state, reference]), self.model.state_names, self.layout)
-        U = self.model.lift(window)
+        window = np.empty((len(reference) + 1, self.model.n_x))
+        window[0], window[1:] = state, reference
+        U = self.model.lift(window_in_place(window, self.layout))
         return TickFrame(np.asarray(state, float), U[0], U[1:], window[1:])
 
     def problem(self, frame: TickFrame, u_prev: np.ndarray, gp: FITCGP | None = None) -> HorizonProblem:

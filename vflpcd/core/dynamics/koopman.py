@@ -94,4 +94,7 @@ class KoopmanModel(LiftedLinearModel):
 
     def rho(self, x: np.ndarray) -> np.ndarray:
         x = np.asarray(x, dtype=np.float64)
-        return np.concatenate([self.encode(x), np.ones(x.shape[:-1] + (1,))], axis=-1)
+        out = np.empty(x.shape[:-1] + (self.n_encoder + 1,))
+        out[..., :-1] = self.encode(x)
+        out[..., -1] = 1.0
+        return out

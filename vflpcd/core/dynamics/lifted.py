@@ -92,6 +92,12 @@ def to_window_frame(states: np.ndarray, state_names: Sequence[str], layout: Pose
     lay = PoseLayout.of(state_names) if layout is None else layout
     if w.ndim < 2 or w.shape[-1] != len(state_names):
         raise ValueError(f"expected windows of shape (..., T, {len(state_names)}), got {w.shape}")
+    return window_in_place(w, lay)
+
+
+def window_in_place(w: np.ndarray, lay: PoseLayout) -> np.ndarray:
+    """``to_window_frame`` on w (..., T, n_x) float64 itself (overwritten and returned), its layout
+    given: for a caller that builds the windows in a new array anyway."""
     if lay.kind == "none":
         return w
     if lay.kind == "position":
@@ -260,7 +266,10 @@ class LiftedLinearModel(ABC):
         x = np.asarray(x, dtype=np.float64)
         if x.shape[-1] != self.n_x:
             raise ValueError(f"expected states (..., {self.n_x}), got {x.shape}")
-        return np.concatenate([x, self.rho(x)], axis=-1)
+        out = np.empty(x.shape[:-1] + (self.n_K,))
+        out[..., : self.n_x] = x
+        out[..., self.n_x:] = self.rho(x)
+        return out
 
     # ------------------------------------------------------------------ prediction
     def rollout(self, x0: np.ndarray, controls: np.ndarray) -> np.ndarray:
