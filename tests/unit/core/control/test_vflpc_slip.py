@@ -84,3 +84,23 @@ def test_slip_angle_signs_its_lever_and_a_body_that_does_not_slip():
     assert Body(np.zeros(1), 1.0).slip_angle(0.1, 5.0) == 0.0
     np.testing.assert_allclose(body.slip_angle(np.array([0.05, 0.0]), np.array([3.0, 3.0])),
                                [np.arcsin(0.05 * (1.8 - 0.09)), 0.0])
+
+
+def test_a_sharp_corner_of_a_polyline_road_turns_the_reference_no_more_than_the_car_can(tmp_path):
+    """A road of waypoints with a 60 degree corner and no radius: the road's bend there is at most
+    the car's curvature limit (its heading's change over a metre would be 1 1/m), so the slip in
+    the reference stays at most asin(lr kappa_limit) whatever the road's drawing."""
+    text = (config_dir() / "scenarios" / "suite" / "roundabout.toml").read_text()
+    head, rest = text.split("[path]", 1)
+    rest = rest.split("[start]", 1)[1]
+    corner = "[path]\nkind = \"waypoints\"\npoints = [[0.0, 0.0], [12.0, 0.0], [30.0, 31.18]]\n\n[start]" + rest
+    path = tmp_path / "corner.toml"
+    path.write_text(head + corner)
+    sc = dataclasses.replace(load_scenario(path), obstacles=())
+    ctrl = make_vflpc(sc)
+    plant = make_plant(sc, 0)
+    ctrl.step(plant.state, 0.0)
+    slip = ctrl._road_slip()
+    bound = np.arcsin(ctrl._body.rear_axle * ctrl.planner.kappa_limit)
+    assert np.max(np.abs(slip)) > 0.5 * bound                   # the corner is in the plan
+    assert np.max(np.abs(slip)) <= bound + 1e-12
