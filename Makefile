@@ -9,6 +9,7 @@ BIN    := $(VENV)/bin
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --disable-pip-version-check -e '.[plot,test]'
+	$(BIN)/vflpcd compile
 	touch $@
 
 setup: $(BIN)/.installed

@@ -95,3 +95,25 @@ def test_a_planner_sent_to_a_worker_process_loads_its_compiled_loops_from_the_ca
     assert run.returncode == 0, run.stderr[-2000:]
     cache, seconds = run.stdout.split()
     assert "NullCache" not in cache and float(seconds) < 3.0, run.stdout
+
+
+def test_vflpcd_compile_compiles_every_loop_and_says_so(capsys):
+    """``vflpcd compile`` (run by ``make`` at set-up) loads or compiles each loop and prints one line
+    per loop; the loops are then the process's compiled ones."""
+    from vflpcd.app.cli import main
+
+    assert main(["compile"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines == [f"{name}: compiled" for name in
+                     ("ebrhrl_loop", "scheduled_problem_loop", "path_loop", "guidance_loops")]
+    assert all(hasattr(fn(), "signatures") for fn in (loops.ebrhrl_loop, loops.scheduled_problem_loop, loops.path_loop))
+    assert loops.guidance_loops().active_set is loops.active_set_loop()
+
+
+def test_vflpcd_compile_says_which_loops_run_interpreted_without_numba(monkeypatch, capsys):
+    from vflpcd.app.cli import main
+
+    monkeypatch.setattr(loops, "compile_all", lambda: {"ebrhrl_loop": False, "path_loop": True})
+    assert main(["compile"]) == 0
+    assert capsys.readouterr().out.splitlines() == ["ebrhrl_loop: interpreted (numba is not installed)",
+                                                    "path_loop: compiled"]

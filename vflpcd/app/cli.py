@@ -134,6 +134,9 @@ def main(argv: list[str] | None = None) -> int:
                         "mavlink: vflpcd sitl quad) and stop it at the end")
     p.set_defaults(func=cmd_run)
 
+    p = sub.add_parser("compile", help="compile the controllers' loops into numba's on-disk cache (at installation)")
+    p.set_defaults(func=cmd_compile)
+
     p = sub.add_parser("check", help="validate a mission file without running it")
     p.add_argument("mission", type=Path)
     p.set_defaults(func=cmd_check)
@@ -243,6 +246,15 @@ def cmd_run(args) -> int:
     else:
         print(f"outcome: {result.outcome.reason} (exit code {result.outcome.code})")
     return result.outcome.code
+
+
+def cmd_compile(args) -> int:
+    """Compile the loops (``vflpcd.controllers.loops.compile_all``) and say which run interpreted."""
+    from vflpcd.controllers.loops import compile_all
+
+    for name, compiled in compile_all().items():
+        print(f"{name}: {'compiled' if compiled else 'interpreted (numba is not installed)'}")
+    return 0
 
 
 def cmd_check(args) -> int:
