@@ -418,6 +418,7 @@ class VFLPC(ControllerBase):
                 self.replan_failed(job, f"refused: {refused}")
                 return
         self._plan, self._ends_path = plan, result.ends_path
+        self._road_slip()               # its slip series now, between ticks, not in the next tick
         self._signature = _velocities(job.obstacles)
         if self._asked is not None and self._asked[0] is job:
             self._asked = None              # the newest picture asked for is the one now planned
@@ -573,7 +574,7 @@ class VFLPC(ControllerBase):
         (carsim_avoidance J_MC 1.62 -> 1.87, a supervisor intervention), where a bend held for
         seconds is driven at its steady slip (racing_track: 0.05 rad at 6 m/s). The road's bend is
         its heading's change over ``CURVATURE_WINDOW`` of arc (a corner of a polyline road is not a
-        spike), at most the car's curvature limit. Computed once per plan."""
+        spike), at most the car's curvature limit. Computed once per plan, when it is installed."""
         plan = self._plan
         if self._slip_of is not None and self._slip_of[0] is plan:
             return self._slip_of[1]
