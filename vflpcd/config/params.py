@@ -58,11 +58,12 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
     feat, bar, rep = root.table("features"), root.table("barrier"), root.table("replan")
     vehicle = root.table("vehicle", {})
     vehicle.check_known({"params"})
+    vehicle_params = vehicle.string("params", "nominal")
     if platform == "ground":            # the car's parameter set, named here when the plant file lacks it
         from vflpcd.config.vehicles import BicycleConfig
 
         try:
-            BicycleConfig.load(vehicle.string("params", "nominal"))
+            BicycleConfig.load(vehicle_params)
         except ConfigError as exc:
             if exc.field.startswith("params."):
                 raise vehicle.error("params", exc.message) from None
@@ -129,4 +130,4 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
                R_rate_light=None if r_light is None else np.diag(r_light),
                light_hold=cost.number("light_hold", 2.0, min=0.0),
                light_speeds=(float(light_speeds[0]), float(light_speeds[1])),
-               vehicle_params=vehicle.string("params", "nominal"))
+               vehicle_params=vehicle_params)

@@ -89,10 +89,8 @@ def guidance_loops():
 def compile_all() -> dict[str, bool]:
     """Compile (or load) every loop of this module now: name -> whether it is compiled (False:
     numba is missing and its numpy path runs). ``vflpcd compile`` calls it at installation, so
-    that later processes load them from the cache in milliseconds: a compile takes 10-15 s of CPU
-    on this project's 2-core machines. (On a fresh clone, where the test suite's processes compiled
-    them while real-time missions ran beside them, an in-process vehicle's state went 250-258 ms
-    stale in 2 of 2 runs; with the loops compiled at set-up it did not.)"""
+    that later processes load them from the cache in milliseconds instead of compiling for
+    10-15 s of CPU (docs/results.md, "The test suite", for what compiling beside real-time runs did)."""
     return {fn.__name__: fn() is not None
             for fn in (ebrhrl_loop, scheduled_problem_loop, path_loop, guidance_loops)}
 

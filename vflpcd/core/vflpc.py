@@ -251,8 +251,10 @@ class VFLPC(ControllerBase):
         self.N = max(1, int(round(params.horizon_s / self.dt)))
         self._horizon_offsets = self.dt * np.arange(self.N + 1)     # tau dt, tau = 0 .. N
         self._body = planner.body
-        self._slip_of: tuple | None = None        # (plan, its slip series): _road_slip
-        self._road_bend: np.ndarray | None = None  # the route's bend at its points: _road_slip
+        self._road_bend = None                    # the route's bend at its points, for _road_slip
+        if self._body.slips:
+            limit = planner.kappa_limit
+            self._road_bend = np.clip(heading_curvature(planner.path.points), -limit, limit)
         self.dim = planner.dim
         names, layout = model.state_names, PoseLayout.of(model.state_names)
         self._pos_index = np.array(layout.position)
@@ -312,6 +314,7 @@ class VFLPC(ControllerBase):
         self._light = False
         self.solver.reset()
         self._plan = None
+        self._slip = None               # the plan's slip series (_road_slip), None: none
         self._ends_path = False
         self._ticks = 0
         self._signature: dict[str, np.ndarray] = {}
@@ -418,7 +421,7 @@ class VFLPC(ControllerBase):
                 self.replan_failed(job, f"refused: {refused}")
                 return
         self._plan, self._ends_path = plan, result.ends_path
-        self._road_slip()               # its slip series now, between ticks, not in the next tick
+        self._slip = self._road_slip(plan)      # between ticks, not in the next tick
         self._signature = _velocities(job.obstacles)
         if self._asked is not None and self._asked[0] is job:
             self._asked = None              # the newest picture asked for is the one now planned
@@ -549,9 +552,8 @@ class VFLPC(ControllerBase):
         smp = self._plan.trajectory.sample(times, series)
         if planar:
             psi, vx, vy = smp["psi"], smp["v"], 0.0
-            slip = self._road_slip()
-            if slip is not None:
-                beta = np.interp(times, self._plan.trajectory.t, slip)
+            if self._slip is not None:
+                beta = np.interp(times, self._plan.trajectory.t, self._slip)
                 psi, vx, vy = psi - beta, vx * np.cos(beta), vx * np.sin(beta)
             cols = {"X": smp["pos"][:, 0], "Y": smp["pos"][:, 1], "psi": psi, "yaw": psi,
                     "vx": vx, "vy": vy, "omega": smp["omega"]}
@@ -566,29 +568,22 @@ class VFLPC(ControllerBase):
                 out[:, j] = cols[name]
         return out
 
-    def _road_slip(self) -> np.ndarray | None:
-        """The car's steady slip angle beta (rad, ``Body.slip_angle``) at each point of the current
-        plan's trajectory, in the road's bend there (the route's curvature at the same distance along
-        it) at the planned speed; None for a body that does not slip. The road's bend, not the plan's
+    def _road_slip(self, plan) -> np.ndarray | None:
+        """The car's steady slip angle beta (rad, ``Body.slip_angle``) at each point of ``plan``'s
+        trajectory, in the road's bend there (the route's curvature at the same distance along it)
+        at the planned speed; None for a body that does not slip, or where the road is straight
+        (the tick then skips it). The road's bend, not the plan's
         own curvature: with the plan's own, the slip of every swerve entered the reference heading
         (carsim_avoidance J_MC 1.62 -> 1.87, a supervisor intervention), where a bend held for
         seconds is driven at its steady slip (racing_track: 0.05 rad at 6 m/s). The road's bend is
         its heading's change over ``CURVATURE_WINDOW`` of arc (a corner of a polyline road is not a
         spike), at most the car's curvature limit. Computed once per plan, when it is installed."""
-        plan = self._plan
-        if self._slip_of is not None and self._slip_of[0] is plan:
-            return self._slip_of[1]
-        slip = None
-        if self._body.slips:
-            traj, path = plan.trajectory, self.planner.path
-            if self._road_bend is None:
-                limit = self.planner.kappa_limit
-                self._road_bend = np.clip(heading_curvature(path.points), -limit, limit)
-            s0 = path.arc_length_of(traj.pos[0], self._s)
-            bend = np.interp(path.wrap_s(s0 + traj.s - traj.s[0]), path.s, self._road_bend)
-            slip = self._body.slip_angle(bend, traj.v)
-        self._slip_of = (plan, slip)
-        return slip
+        if self._road_bend is None:
+            return None
+        traj, path = plan.trajectory, self.planner.path
+        s0 = path.arc_length_of(traj.pos[0], self._s)
+        bend = np.interp(path.wrap_s(s0 + traj.s - traj.s[0]), path.s, self._road_bend)
+        return self._body.slip_angle(bend, traj.v) if np.any(bend) else None
 
     def _select_mode(self) -> None:
         """The increment weights of the tick: ``R_rate_threat`` while a mover threatens (the barrier
