@@ -1,19 +1,20 @@
 """`vflpcd bench dynamics`: costs of the learned model and the online compensation demo.
 
 Timings (median over repeated calls, single-threaded BLAS): encoder + lift of one state; the
-FITC GP mean + Jacobian at one point with 64 inducing points and 3 outputs; a full refit
-(hyper-parameters + posterior, 64 inducing points, 300 samples, 3 outputs).
+FITC GP mean + Jacobian at one point, and a full refit (hyper-parameters + posterior), at the sizes
+vflpc_ml ships (config/controllers/vflpc.toml [compensation]: inducing points, samples, channels).
 
 Online compensation (paper section "Model Uncertainties Learning"): on ``racing_track``, the
 nominal model (a ``LiftedLinearModel``, by default the shipped vehicle model) meets the plant
 with the paper's "exact" parameters and process noise, driven by pure pursuit. Transitions of
 the first 100 m feed an ``OnlineCompensator`` (ALD dictionary, FITC GP on the residual
-d = B_d^+ (Upsilon_{k+1} - A Upsilon_k - B u_k) of v_x, v_y, omega and the encoder outputs);
+d = B_d^+ (Upsilon_{k+1} - A Upsilon_k - B u_k) of the channels vflpc_ml ships: Y, psi, v_x, v_y, omega);
 after one refit, the rest of the lap measures the one-step and 1-s open-loop prediction errors
 of the nominal and the compensated model, in each prediction's own window frame (the 1-s
 rollout re-lifts the predicted state at every step, Upsilon = [x, rho_e(x)]). It runs twice:
 with the GP input [v_x, v_y, omega, u], and with the paper's [v_x, v_y, omega, rho_e, u] (the
-paper's structure, where B_d corrects v_x, v_y, omega only). The GP works in
+paper's structure; the pose channels never enter the input, a sample's pose being its window
+frame's origin). The GP works in
 lifted coordinates scaled by their spread on the first 100 m (a linear change of variables, so
 that one isotropic length scale fits inputs of different units).
 
@@ -38,7 +39,7 @@ from vflpcd.controllers import make_controller
 from vflpcd.controllers.vflpc import load_params
 from sim.runner import run_closed_loop
 from vflpcd.config.scenarios import load_scenario
-from vflpcd.core.dynamics.compensation import KoopmanCompensation, OnlineCompensator
+from vflpcd.core.dynamics.compensation import KoopmanCompensation, OnlineCompensator, channel_rows
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, to_window_frame
 from vflpcd.core.dynamics.sparse_gp import FITCGP, SEHyper, refit
 from vflpcd.config.vehicles import STATE_NAMES, BicycleConfig
@@ -63,7 +64,7 @@ def timings(model: LiftedLinearModel, seed: int = 0) -> dict:
     t_lift = _median_time(lambda: model.lift(x), 2000)
     n_z, n_y, m, n = 8, len(SHIPPED.gp_channels), SHIPPED.gp_m_max, SHIPPED.gp_n_max
     Z = rng.normal(size=(n, n_z))
-    Y = np.column_stack([np.sin(Z[:, 0]) + 0.1 * Z[:, 1], np.cos(Z[:, 2]), Z[:, 3] * Z[:, 4]])
+    Y = np.column_stack([np.sin(Z[:, j % n_z]) + 0.1 * Z[:, (j + 1) % n_z] for j in range(n_y)])
     Zm = Z[rng.choice(n, m, replace=False)]
     hyp = SEHyper(sf2=np.ones(n_y), ell=np.full(n_y, 2.0), sn2=np.full(n_y, 1e-2))
     gp = FITCGP.fit(Zm, Z, Y, hyp)
@@ -100,11 +101,11 @@ def compensation_demo(model: LiftedLinearModel, seed: int = 0, learn_m: float = 
     B_sc = model.B * e[None, :] / d[:, None]
     j = model.schedule_index                  # a scheduled input matrix: s B_s u = (d_j s~) B_s (e u~)
     scheduled = (model.B_s * e[None, :] / d[:, None] * d[j], j) if model.scheduled else ()
-    vel = [names.index(v) for v in SHIPPED.gp_channels]
+    vel, inputs = channel_rows(names, SHIPPED.gp_channels)
     varying = [i for i in range(n_x, model.n_K) if np.ptp(U0[learn, i]) > 1e-9]  # encoder outputs, not the constant
     B_d = np.zeros((model.n_K, len(vel)))
     B_d[vel, range(len(vel))] = 1.0
-    comp = KoopmanCompensation(A_sc, B_sc, B_d, vel + (varying if with_encoder else []), *scheduled)
+    comp = KoopmanCompensation(A_sc, B_sc, B_d, inputs + (varying if with_encoder else []), *scheduled)
     targets = comp.residual_target(U0[learn] / d, u[:-1][learn] / e, U1[learn] / d)
     n_z = comp.n_z
     hyp0 = SEHyper(sf2=np.maximum(np.var(targets.d, axis=0), 1e-8), ell=np.full(len(vel), np.sqrt(n_z)),
@@ -133,7 +134,7 @@ def compensation_demo(model: LiftedLinearModel, seed: int = 0, learn_m: float = 
         pos = [names.index("X"), names.index("Y")]
         multi[label] = {"position": float(np.sqrt(np.mean(np.sum(err[:, pos] ** 2, axis=1)))),
                         **{n: float(np.sqrt(np.mean(err[:, i] ** 2))) for i, n in enumerate(names) if i not in pos}}
-    return {"gp_input": "v_x, v_y, omega, " + ("rho_e, " if with_encoder else "") + "u", "learn_distance_m": learn_m, "learn_samples": int(learn.sum()), "test_samples": int(len(test)),
+    return {"gp_input": ", ".join([names[i] for i in inputs] + (["rho_e"] if with_encoder else []) + ["u"]), "learn_distance_m": learn_m, "learn_samples": int(learn.sum()), "test_samples": int(len(test)),
             "inducing_points": int(online.dictionary.m), "gp_fitted": gp is not None,
             "one_step_rmse": one, f"open_loop_{horizon_s:g}s_rmse": multi}
 
@@ -165,8 +166,9 @@ def steering_response(model: LiftedLinearModel, speeds=(1.5, 3.0, 6.0, 10.0, 15.
 def bench_dynamics(model: LiftedLinearModel, out: Path, seed: int = 0) -> dict:
     t = timings(model, seed)
     print(f"encoder + lift, one state:               {t['lift_s'] * 1e6:8.1f} us")
-    print(f"GP mean + Jacobian (64 inducing, 3 out): {t['gp_mean_jacobian_s'] * 1e6:8.1f} us (target <= 50 us)")
-    print(f"GP full refit (64 inducing, 300 samples): {t['gp_refit_s'] * 1e3:7.1f} ms (target <= 300 ms)")
+    sizes = f"{t['gp_inducing']} inducing, {t['gp_outputs']} out"
+    print(f"GP mean + Jacobian ({sizes}): {t['gp_mean_jacobian_s'] * 1e6:8.1f} us (target <= 50 us)")
+    print(f"GP full refit ({sizes}, {t['gp_samples']} samples): {t['gp_refit_s'] * 1e3:7.1f} ms (target <= 300 ms)")
     demos = [compensation_demo(model, seed, with_encoder=False), compensation_demo(model, seed, with_encoder=True)]
     for demo in demos:
         print(f"\nonline compensation on racing_track, 'exact' plant with process noise (seed {seed}), GP input "

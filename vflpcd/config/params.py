@@ -118,7 +118,7 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
                stale_distance=rep.number("stale_distance", 1.0, positive=True),
                refit_every=comp.integer("refit_every", 100, min=1),
                refit_min_samples=comp.integer("min_samples", 60, min=1),
-               gp_channels=tuple(comp.strings("channels", ("vx", "vy", "omega"))),
+               gp_channels=tuple(comp.strings("channels", ("Y", "psi", "vx", "vy", "omega"))),
                gp_ell=comp.number("ell", 3.0, positive=True), gp_sf2=comp.number("sf2", 0.05, positive=True),
                gp_sn2=comp.number("sn2", 1e-4, positive=True), gp_nu=comp.number("nu", 0.05, positive=True),
                gp_m_max=comp.integer("m_max", 48, min=1), gp_n_max=comp.integer("n_max", 400, min=2),

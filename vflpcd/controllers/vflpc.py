@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from vflpcd.core.control.error_model import Limits
-from vflpcd.core.dynamics.compensation import KoopmanCompensation, OnlineCompensator
+from vflpcd.core.dynamics.compensation import KoopmanCompensation, OnlineCompensator, channel_rows
 from vflpcd.config.koopman_file import load_koopman
 from vflpcd.core.dynamics.sparse_gp import SEHyper
 from vflpcd.core.guidance.planner import GuidancePlanner
@@ -72,17 +72,14 @@ def curvature_limit(scenario) -> float:
 
 def compensator_for(model, params: VFLPCParams) -> OnlineCompensator:
     """The GP on the channels of ``[compensation]`` (config/controllers/vflpc.toml; B_d selects them,
-    paper section "Model Uncertainties Learning"), input z = [channels, rho_e, u], its sizes,
-    initial hyper-parameters and the refits' bounds on them from the same table."""
-    names = model.state_names
-    missing = [n for n in params.gp_channels if n not in names]
-    if missing:
-        raise ValueError(f"compensation channels {missing} are not states of the model {names}")
-    rows = [names.index(n) for n in params.gp_channels]
+    paper section "Model Uncertainties Learning"), input z = [channels, rho_e, u] without the pose
+    channels (a sample's pose is the origin of its window frame: zero), its sizes, initial
+    hyper-parameters and the refits' bounds on them from the same table."""
+    rows, inputs = channel_rows(model.state_names, params.gp_channels)
     n_y = len(rows)
     B_d = np.zeros((model.n_K, n_y))
     B_d[rows, range(n_y)] = 1.0
-    z_index = rows + list(range(model.n_x, model.n_K - 1))
+    z_index = inputs + list(range(model.n_x, model.n_K - 1))
     comp = KoopmanCompensation(model.A, model.B, B_d, z_index, B_s=model.B_s if model.scheduled else None,
                                schedule=model.schedule_index)
     hyp = SEHyper(ell=np.full(n_y, params.gp_ell), sf2=np.full(n_y, params.gp_sf2), sn2=np.full(n_y, params.gp_sn2))

@@ -156,7 +156,7 @@ class VFLPCParams:
     R_rate_light: np.ndarray | None = None
     light_hold: float = 2.0
     light_speeds: tuple[float, float] = (0.0, np.inf)
-    gp_channels: tuple[str, ...] = ("vx", "vy", "omega")
+    gp_channels: tuple[str, ...] = ("Y", "psi", "vx", "vy", "omega")
     gp_ell: float = 3.0
     gp_sf2: float = 0.05
     gp_sn2: float = 1e-4

@@ -25,8 +25,23 @@ from typing import NamedTuple
 import numpy as np
 
 from vflpcd.core.dynamics.ald import ALDDictionary
-from vflpcd.core.dynamics.lifted import scheduled_jacobians, scheduled_step
+from vflpcd.core.dynamics.lifted import PoseLayout, scheduled_jacobians, scheduled_step
 from vflpcd.core.dynamics.sparse_gp import DEFAULT_BOUNDS, FITCGP, SEHyper, refit
+
+
+def channel_rows(state_names, channels) -> tuple[list[int], list[int]]:
+    """The rows of the GP's output ``channels`` among ``state_names``, and those of them that enter its
+    input z: the pose channels (position, heading) are left out, as a sample's pose is the origin of
+    its window frame (``lifted.to_window_frame``), zero in every training input. ValueError names a
+    channel that is not a state."""
+    names = list(state_names)
+    missing = [n for n in channels if n not in names]
+    if missing:
+        raise ValueError(f"compensation channels {missing} are not states of the model {tuple(names)}")
+    layout = PoseLayout.of(names)
+    pose = set(layout.position) | ({layout.heading} if layout.heading is not None else set())
+    rows = [names.index(n) for n in channels]
+    return rows, [r for r in rows if r not in pose]
 
 
 class TrainingPairs(NamedTuple):
