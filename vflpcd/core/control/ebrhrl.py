@@ -35,6 +35,12 @@ Iterate until max_tau epsilon_a <= tol or i_max. At a fixed point eq. optimal_ac
 optima_lambda hold along the predicted trajectory: with h = 0 and a linear model that is the
 finite-horizon LQR solution.
 
+Input bounds (optional, per solve: lo_tau <= u~_tau <= hi_tau): the rollout applies the actor's
+output clipped into them, and step 3's targets are projected onto them (a projected Newton step).
+The solver stays unconstrained otherwise; ``SolveInfo.saturated`` counts the steps whose target
+the projection moved. VF-LPC bounds the increments of its light mode by the actuator's rate limit
+(``vflpcd/core/vflpc.py``, ``VFLPC._solve_increments``).
+
 Deviation, measured on the bicycle's Koopman model: the targets of step 2 are computed
 backwards (each from the critic just updated at tau + 1, the order of finite-horizon DHP);
 computing all of them from the previous iteration's critics at once diverged, and so did the
@@ -91,12 +97,14 @@ class KernelFeatures:
 
 @dataclass
 class SolveInfo:
-    """iterations run, whether the tolerance was met, the final max epsilon_a and epsilon_c."""
+    """iterations run, whether the tolerance was met, the final max epsilon_a and epsilon_c, and
+    the steps whose target control the input bounds moved (0 without bounds)."""
 
     iterations: int
     converged: bool
     eps_a: float
     eps_c: float
+    saturated: int = 0
 
 
 class EbRHRL:
@@ -137,6 +145,7 @@ class EbRHRL:
         self._no_barrier = (np.zeros(1, np.int64), np.zeros((T, 1)), np.zeros((0, T, 1)), np.zeros((0, T, 1)),
                             np.zeros(0), 1.0)
         self._R2 = 2.0 * self.R
+        self._open = (np.full((N, n_u), -np.inf), np.full((N, n_u), np.inf))     # the loop's bounds when none
         self.reset()
 
     @property
@@ -155,10 +164,13 @@ class EbRHRL:
         self.W_a[:-1] = self.W_a[1:].copy()
         self.W_c[:-1] = self.W_c[1:].copy()
 
-    def rollout(self, problem: HorizonProblem, closed: np.ndarray | None = None
+    def rollout(self, problem: HorizonProblem, closed: np.ndarray | None = None, bounds=None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Apply the actor to the error model: x~ (N + 1, n), u~ (N, n_u), Phi (N + 1, n_Phi).
-        ``closed``: A_tau - B_tau K_tau (N, n, n) if already at hand."""
+        ``closed``: A_tau - B_tau K_tau (N, n, n) if already at hand; ``bounds``: (lo, hi) (N, n_u)
+        the actor's output is clipped into."""
+        if bounds is not None:
+            return self._bounded_rollout(problem, self.closed_loop(problem) if closed is None else closed, bounds)
         N, f = self.N, self.features
         A_cl = self.closed_loop(problem) if closed is None else closed
         BW = np.einsum("tiu,tmu->tim", problem.B, self.W_a)        # B_tau W_a,tau' (N, n, n_Phi)
@@ -174,6 +186,26 @@ class EbRHRL:
             x[k + 1] = A_cl[k] @ xk + BW[k] @ pk + c[k]
         phi[N] = f(x[N])
         u = np.einsum("tm,tmu->tu", phi[:-1], self.W_a) - np.einsum("tun,tn->tu", self.K, x[:-1])
+        return x, u, phi
+
+    def _bounded_rollout(self, problem: HorizonProblem, A_cl: np.ndarray, bounds
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``rollout`` with the actor's output u~_tau clipped into bounds (lo, hi) (N, n_u):
+        x~_{tau+1} = (A - B K) x~ + B (u~_tau + K x~) + c."""
+        N, f = self.N, self.features
+        lo, hi = bounds
+        x = np.empty((N + 1, self.n))
+        phi = np.empty((N + 1, f.size))
+        u = np.empty((N, self.n_u))
+        x[0] = problem.x0
+        for k in range(N):
+            xk = x[k]
+            pk = np.exp(f._a + f._b @ xk - f._h @ (xk * xk))
+            phi[k] = pk
+            Kx = self.K[k] @ xk
+            u[k] = np.minimum(np.maximum(pk @ self.W_a[k] - Kx, lo[k]), hi[k])
+            x[k + 1] = A_cl[k] @ xk + problem.B[k] @ (u[k] + Kx) + problem.c[k]
+        phi[N] = f(x[N])
         return x, u, phi
 
     def closed_loop(self, problem: HorizonProblem) -> np.ndarray:
@@ -200,38 +232,50 @@ class EbRHRL:
             lam[k] = stage[k] + lam[k + 1] @ gA_cl[k]
         return lam
 
-    def solve(self, problem: HorizonProblem, barrier: HorizonBarrier | None = None) -> tuple[np.ndarray, SolveInfo]:
-        """Iterate from the current weights; returns u~ (N, n_u) (the last targets) and the info."""
+    def solve(self, problem: HorizonProblem, barrier: HorizonBarrier | None = None,
+              bounds: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, SolveInfo]:
+        """Iterate from the current weights; returns u~ (N, n_u) (the last targets) and the info.
+        ``bounds``: (lo, hi) (N, n_u) on u~ (module docstring), None for none."""
         if problem.N != self.N or problem.n != self.n or problem.n_u != self.n_u:
             raise ValueError(f"problem of shape N={problem.N}, n={problem.n}, n_u={problem.n_u} "
                              f"does not match the solver's {self.N}, {self.n}, {self.n_u}")
+        if bounds is not None:
+            bounds = tuple(np.array(np.broadcast_to(np.asarray(b, float), (self.N, self.n_u))) for b in bounds)
+            if np.any(bounds[0] > bounds[1]):
+                raise ValueError("input bounds with lo > hi")
         if self.loop is not None:
-            return self._solve_compiled(problem, barrier)
+            return self._solve_compiled(problem, barrier, bounds)
         R2, gamma = 2.0 * self.R, self.gamma
         BT = problem.B.transpose(0, 2, 1)                                # (N, n_u, n)
         info = SolveInfo(0, False, np.inf, np.inf)
         eta = self.eta_a
         closed = self.closed_loop(problem)
+        saturated = 0
         for i in range(1, self.i_max + 1):
-            x, u, phi = self.rollout(problem, closed)
+            x, u, phi = self.rollout(problem, closed, bounds)
             lam = self.costates(problem, x, u, barrier, closed)
             lam_hat = np.einsum("tm,tmn->tn", phi, self.W_c)
             inv_norm = 1.0 / np.maximum(np.einsum("tm,tm->t", phi, phi), PHI_FLOOR)
             self.W_c += np.einsum("tm,tn->tmn", phi * inv_norm[:, None], lam - lam_hat)       # eta_c = 1/||Phi||^2
             grad = u @ R2.T + gamma * np.einsum("tun,tn->tu", BT, lam[1:])
             target = u - np.einsum("tuv,tv->tu", self.M_inv, grad)                            # step 3
+            if bounds is not None:                                                            # projected
+                newton = target
+                target = np.minimum(np.maximum(newton, bounds[0]), bounds[1])
+                saturated = int(np.count_nonzero(np.any(target != newton, axis=1)))
             err = target - u
             eps_a = 0.5 * float(np.max(np.einsum("tu,tu->t", err, err)))
             if eps_a > info.eps_a:          # the last step overshot (barrier curvature): halve the next
                 eta *= 0.5
             self.W_a += eta * np.einsum("tm,tu->tmu", phi[:-1] * inv_norm[:-1, None], err)
             eps_c = 0.5 * float(np.max(np.einsum("tn,tn->t", lam - lam_hat, lam - lam_hat)))
-            info = SolveInfo(i, eps_a <= self.tol, eps_a, eps_c)
+            info = SolveInfo(i, eps_a <= self.tol, eps_a, eps_c, saturated)
             if info.converged or not np.isfinite(eps_a):
                 break
         return target, info
 
-    def _solve_compiled(self, problem: HorizonProblem, barrier: HorizonBarrier | None) -> tuple[np.ndarray, SolveInfo]:
+    def _solve_compiled(self, problem: HorizonProblem, barrier: HorizonBarrier | None,
+                        bounds: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, SolveInfo]:
         """``solve`` by the compiled ``ebrhrl_kernel.solve_loop`` (the same iterations)."""
         f = self.features
         c = np.ascontiguousarray
@@ -241,8 +285,9 @@ class EbRHRL:
                                                    c(barrier.mu, float), float(barrier.length))
         else:
             pos, p_ref, x_p, normal, mu, length = self._no_barrier
-        target, iterations, eps_a, eps_c = self.loop(
+        lo, hi = bounds if bounds is not None else self._open
+        target, iterations, eps_a, eps_c, saturated = self.loop(
             self.closed_loop(problem), c(problem.B), c(problem.c), c(problem.x0), self.K, self.Q, self._R2,
             self.P, self.M_inv, self.gamma, self.W_a, self.W_c, f._a, f._b, f._h, pos, p_ref,
-            x_p, normal, mu, length, self.eta_a, self.i_max, self.tol, PHI_FLOOR)
-        return target, SolveInfo(int(iterations), bool(eps_a <= self.tol), float(eps_a), float(eps_c))
+            x_p, normal, mu, length, self.eta_a, self.i_max, self.tol, PHI_FLOOR, bounds is not None, lo, hi)
+        return target, SolveInfo(int(iterations), bool(eps_a <= self.tol), float(eps_a), float(eps_c), int(saturated))

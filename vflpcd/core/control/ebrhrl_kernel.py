@@ -5,7 +5,9 @@ loop compiler (numba's ``njit``: ``vflpcd.controllers.loops`` compiles it, outsi
 them into one machine-code function; with the barrier's gradient inline
 (``barrier.HorizonBarrier.gradient``: the exponential of an affine function of the position
 error, constant slope below PI_MIN). ``solve_loop`` updates the actor and critic weights in
-place and returns (targets (N, n_u), iterations, max epsilon_a, max epsilon_c).
+place and returns (targets (N, n_u), iterations, max epsilon_a, max epsilon_c, the steps whose target
+the input bounds moved); ``bounded`` with (lo, hi) (N, n_u) clips the rollout's controls and
+projects the targets (``EbRHRL.solve``'s ``bounds``).
 
 Run as Python it is slow; EbRHRL without a compiled loop runs its vectorised numpy path instead,
 and the two give the same numbers to 1e-12 (tests/unit/core/control/test_ebrhrl.py).
@@ -19,7 +21,7 @@ from vflpcd.core.control.barrier import PI_MIN
 
 
 def solve_loop(A_cl, B, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh,
-               pos_index, p_ref, x_p, normal, mu, length, eta_a, i_max, tol, phi_floor):
+               pos_index, p_ref, x_p, normal, mu, length, eta_a, i_max, tol, phi_floor, bounded, lo, hi):
     N, n, n_u = B.shape[0], B.shape[1], B.shape[2]
     m = fa.shape[0]
     nb, d = mu.shape[0], pos_index.shape[0]
@@ -32,10 +34,13 @@ def solve_loop(A_cl, B, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh,
     BW = np.empty((N, n, m))
     inv = np.empty(N + 1)                     # 1 / max(||Phi_tau||^2, phi_floor), the normalised steps
     g = np.empty(n_u)
+    Kx = np.empty(n_u)
     eta, eps_a_prev, eps_a, eps_c = eta_a, np.inf, np.inf, np.inf
     iterations = 0
+    saturated = 0
     for it in range(1, i_max + 1):
         iterations = it
+        saturated = 0
         # step 1: rollout of the actor through x~_{tau+1} = (A - B K) x~ + B W_a' Phi(x~) + c
         for k in range(N):
             for i in range(n):
@@ -54,6 +59,25 @@ def solve_loop(A_cl, B, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh,
                 phi[k, j] = np.exp(s)
             if k == N:
                 break
+            if bounded:     # the actor's output clipped: x~_{tau+1} = (A - B K) x~ + B (u~ + K x~) + c
+                for v in range(n_u):
+                    s = 0.0
+                    for i in range(n):
+                        s += K[k, v, i] * x[k, i]
+                    Kx[v] = s
+                    s = 0.0
+                    for j in range(m):
+                        s += phi[k, j] * W_a[k, j, v]
+                    u[k, v] = min(max(s - Kx[v], lo[k, v]), hi[k, v])
+                for i in range(n):
+                    s = 0.0
+                    for l in range(n):
+                        s += A_cl[k, i, l] * x[k, l]
+                    r = 0.0
+                    for v in range(n_u):
+                        r += B[k, i, v] * (u[k, v] + Kx[v])
+                    x[k + 1, i] = s + r + c[k, i]
+                continue
             for i in range(n):
                 s = c[k, i]
                 for l in range(n):
@@ -61,14 +85,15 @@ def solve_loop(A_cl, B, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh,
                 for j in range(m):
                     s += BW[k, i, j] * phi[k, j]
                 x[k + 1, i] = s
-        for k in range(N):
-            for v in range(n_u):
-                s = 0.0
-                for j in range(m):
-                    s += phi[k, j] * W_a[k, j, v]
-                for i in range(n):
-                    s -= K[k, v, i] * x[k, i]
-                u[k, v] = s
+        if not bounded:
+            for k in range(N):
+                for v in range(n_u):
+                    s = 0.0
+                    for j in range(m):
+                        s += phi[k, j] * W_a[k, j, v]
+                    for i in range(n):
+                        s -= K[k, v, i] * x[k, i]
+                    u[k, v] = s
         # the barrier's gradient dh/dx~ along the rollout
         for k in range(N + 1):
             for i in range(n):
@@ -125,12 +150,21 @@ def solve_loop(A_cl, B, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh,
                     s += gamma * B[k, i, v] * lam[k + 1, i]
                 g[v] = s
             e2 = 0.0
+            moved = False
             for v in range(n_u):
                 s = 0.0
                 for w in range(n_u):
                     s += M_inv[k, v, w] * g[w]
-                target[k, v] = u[k, v] - s
+                t = u[k, v] - s
+                if bounded:         # projected onto the bounds
+                    p = min(max(t, lo[k, v]), hi[k, v])
+                    moved = moved or p != t
+                    t = p
+                    s = u[k, v] - t
+                target[k, v] = t
                 e2 += s * s
+            if moved:
+                saturated += 1
             eps_a = max(eps_a, 0.5 * e2)
         if eps_a > eps_a_prev:          # the last step overshot (barrier curvature): halve the next
             eta *= 0.5
@@ -141,4 +175,4 @@ def solve_loop(A_cl, B, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh,
         eps_a_prev = eps_a
         if eps_a <= tol or not np.isfinite(eps_a):
             break
-    return target, iterations, eps_a, eps_c
+    return target, iterations, eps_a, eps_c, saturated

@@ -17,6 +17,13 @@ the field at a robot off the path points towards it, and a reference that starts
 asks the car for a step in heading. Q_i is convex, so it is convexified by a supporting
 half-plane per point: at the point where the gradient line through x_k meets the level
 varphi_i = CLEAR_LEVEL c_i just outside Q_i (a few outer rounds re-take them at the new points).
+A free end is faired with a lead-out: the path continued ``LEAD_OUT`` m on the circle of its end's
+curvature, free of the half-planes, and cut off after the solve. A bending-energy minimiser's free
+end has no curvature (its natural boundary condition), so without it a plan ending in a bend
+straightened out of it over its last metres: on the 15 m ring of the road suite's roundabout the
+faired path left the ring by up to 2.8 m at its end, the tight path anchored on it then broke the
+curvature limit there (0.140 against 0.139 1/m) and the field's wide path stood (J_MC 0.31-0.93 with
+the car's state at the replan).
 Each convex problem is solved by the dual active set of ``active_set_kernel`` (a banded Cholesky
 factorisation a round, compiled with numba where it is installed), started from the previous
 problem's final active set (the next outer round, the next l): its rounds are about the number of
@@ -40,6 +47,7 @@ from vflpcd.core.guidance.active_set_kernel import dual_step
 from vflpcd.core.guidance.speed import arc_lengths, menger_curvature
 
 FAIR_MIN, FAIR_MAX = 2.0, 64.0  # fairing length l, m
+LEAD_OUT = 8.0  # m of lead-out beyond a free end (fair_path)
 HEADING_TOLERANCE = np.radians(5.0)  # a planned start direction further off the robot's heading is faired
 SPACING = 0.25  # resampling step h, m
 CLEAR_LEVEL = 0.8  # half-planes touch varphi = CLEAR_LEVEL * c_i: just outside Q_i (c_i < 0)
@@ -271,19 +279,44 @@ def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequ
     r, t = resample(xy, times, SPACING)
     if heading is not None:  # the second point pins the start heading to the robot's
         r[1] = r[0] + SPACING * np.asarray(heading, float) / np.linalg.norm(heading)
-    best, best_kappa = r, np.max(menger_curvature(r))
+    K = len(r)
+    if not pin_end:         # a free end is faired with a lead-out beyond it (``lead_out``), cut off after
+        r, t = lead_out(r, t, LEAD_OUT, kappa_max)
+    best, best_kappa = r[:K], np.max(menger_curvature(r[:K]))
     fair, active = FAIR_MIN, None
     while fair <= FAIR_MAX * (1 + 1e-9):
         eps = (SPACING / fair) ** 4
         x = r
         for _ in range(OUTER_ROUNDS):
-            n, b = half_planes(x, t, regions) if planes is None else planes(x, t)
+            n, b = half_planes(x[:K], t[:K], regions) if planes is None else planes(x[:K], t[:K])
+            if len(x) > K:          # the lead-out is free
+                n = np.vstack([n, np.zeros((len(x) - K, n.shape[1]))])
+                b = np.concatenate([b, np.full(len(x) - K, -np.inf)])
             x, active = solve_active_set(r, eps, n, b, pin_end, active, loop=loop)
-        clear = all(np.all(r.values(x, t)[2:-2] > r.c) for r in regions)
-        kappa = np.max(menger_curvature(x))
+        kept, tk = x[:K], t[:K]
+        clear = all(np.all(g.values(kept, tk)[2:-2] > g.c) for g in regions)
+        kappa = np.max(menger_curvature(kept))
         if clear and kappa < best_kappa:
-            best, best_kappa = x, kappa
+            best, best_kappa = kept, kappa
         if clear and kappa <= kappa_max:
-            return x
+            return kept
         fair *= 2.0
     return best
+
+
+def lead_out(r: np.ndarray, t: np.ndarray, length: float, kappa_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """A planar r (K, 2) at times t (K,), resampled at SPACING, continued by ``length`` m on the circle
+    of its end's curvature (its heading's change over the last metre, at most kappa_max), the times at
+    the last step's rate; other paths are returned as they are."""
+    if r.shape[1] != 2:
+        return r, t
+    m = max(int(round(1.0 / SPACING)), 1)
+    seg = np.diff(r[-m - 1:], axis=0)
+    ang = np.unwrap(np.arctan2(seg[:, 1], seg[:, 0]))
+    kappa = float(np.clip((ang[-1] - ang[0]) / max(SPACING * (len(ang) - 1), 1e-9), -kappa_max, kappa_max))
+    n = int(np.ceil(length / SPACING))
+    theta = ang[-1] + kappa * SPACING * np.arange(1, n + 1)
+    step = SPACING * np.column_stack([np.cos(theta), np.sin(theta)])
+    ext = r[-1] + np.cumsum(step, axis=0)
+    dt = (t[-1] - t[-2]) if len(t) > 1 else 0.0
+    return np.vstack([r, ext]), np.concatenate([t, t[-1] + dt * np.arange(1, n + 1)])

@@ -164,3 +164,55 @@ def test_the_compiled_iterations_give_the_numpy_numbers(seed):
             assert abs(getattr(i_fast, eps) - getattr(i_slow, eps)) <= 1e-10 * max(1.0, getattr(i_slow, eps))
         fast.shift()
         slow.shift()
+
+
+def _bounded_case(seed: int):
+    """A problem whose unbounded plan leaves a box on u~ at some steps, and that box."""
+    rng, A, B, Q, R = _system(seed)
+    P = sl.solve_discrete_are(A, B, Q, R)
+    prob = _problem(A, B, Q, R, P, 3.0 * rng.normal(size=n), 0.1 * rng.normal(size=(N, n)))
+    free, _ = EbRHRL(A, B, Q, R, P, 1.0, _features(rng), N, i_max=50, tol=1e-20).solve(prob)
+    half = 0.5 * np.abs(free).max(axis=0)
+    return rng, A, B, Q, R, P, prob, free, (np.broadcast_to(-half, (N, n_u)), np.broadcast_to(half, (N, n_u)))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_bounded_solves_keep_the_bounds_and_count_the_projected_steps(seed):
+    rng, A, B, Q, R, P, prob, free, (lo, hi) = _bounded_case(seed)
+    solver = EbRHRL(A, B, Q, R, P, 1.0, _features(rng), N, i_max=50, tol=1e-20)
+    u, info = solver.solve(prob, bounds=(lo, hi))
+    assert np.all(u >= lo) and np.all(u <= hi)
+    outside = int(np.count_nonzero(np.any((free < lo) | (free > hi), axis=1)))
+    assert outside > 0 and info.saturated > 0
+    assert info.saturated == int(np.count_nonzero(np.any((u == lo) | (u == hi), axis=1)))
+
+
+def test_bounds_with_lo_above_hi_are_an_error():
+    rng, A, B, Q, R = _system(0)
+    P = sl.solve_discrete_are(A, B, Q, R)
+    solver = EbRHRL(A, B, Q, R, P, 1.0, _features(rng), N)
+    with pytest.raises(ValueError, match="lo > hi"):
+        solver.solve(_problem(A, B, Q, R, P, np.ones(n)), bounds=(np.ones(n_u), np.zeros(n_u)))
+
+
+@needs_numba
+@pytest.mark.parametrize("seed", range(4))
+def test_the_compiled_bounded_iterations_give_the_numpy_numbers(seed):
+    rng, A, B, Q, R, P, prob, _, bounds = _bounded_case(seed)
+    feats = _features(rng)
+    barrier = [None, _barrier()][seed % 2]
+    fast = EbRHRL(A, B, Q, R, P, 1.0, feats, N, i_max=15, tol=1e-30, loop=LOOP)
+    slow = EbRHRL(A, B, Q, R, P, 1.0, feats, N, i_max=15, tol=1e-30)
+    fast.W_a = 0.02 * rng.normal(size=fast.W_a.shape)
+    slow.W_a = fast.W_a.copy()
+    for _ in range(3):
+        u_fast, i_fast = fast.solve(prob, barrier, bounds)
+        u_slow, i_slow = slow.solve(prob, barrier, bounds)
+        assert np.abs(u_fast - u_slow).max() <= 1e-12 * max(1.0, np.abs(u_slow).max())
+        for W in ("W_a", "W_c"):
+            a, b = getattr(fast, W), getattr(slow, W)
+            assert np.abs(a - b).max() <= 1e-12 * max(1.0, np.abs(b).max())
+        assert (i_fast.iterations, i_fast.saturated) == (i_slow.iterations, i_slow.saturated)
+        assert i_slow.saturated > 0
+        fast.shift()
+        slow.shift()

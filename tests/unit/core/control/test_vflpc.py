@@ -46,7 +46,7 @@ def test_diverging_solver_falls_back_to_the_terminal_lqr(straight):
     plant = make_plant(straight, 0)
 
     class Broken:
-        def solve(self, problem, barrier):
+        def solve(self, problem, barrier, bounds=None):
             return np.full((problem.N, problem.n_u), np.nan), None
 
         def shift(self):

@@ -178,11 +178,13 @@ def test_the_refits_hyperparameter_bounds_come_from_the_config(straight):
         vflpc_params(_table({"compensation": {"sf2_bounds": [0.0, 0.1]}}), "ground")
 
 
-def test_light_weights_while_their_plans_keep_the_rate_limit(straight, monkeypatch):
-    """On the straight the light increment weights (when configured) plan steps within the steering
-    rate and are kept; a plan that breaks the rate limit is solved again with the cruise weights,
-    which then stay for light_hold seconds."""
+def test_light_weights_keep_the_rate_limit_by_their_bounds_and_rest_when_they_ride_it(straight, monkeypatch):
+    """On the straight the light increment weights plan within bounds that keep the command within
+    the steering rate at every step, and are kept; a plan that rides the bounds at more than
+    LIGHT_SATURATION of its steps is solved again with the cruise weights, which then stay for
+    light_hold seconds."""
     import vflpcd.controllers.vflpc as factory
+    from vflpcd.core.vflpc import LIGHT_SATURATION
 
     shipped = factory.load_params
     monkeypatch.setattr(factory, "load_params", lambda platform, path=None: dataclasses.replace(
@@ -191,29 +193,55 @@ def test_light_weights_while_their_plans_keep_the_rate_limit(straight, monkeypat
     plant = make_plant(straight, 0)
     light_solver = ctrl._light_mode[1]
     assert ctrl.params.R_rate_light[1, 1] < ctrl.params.R_rate[1, 1]
+    real = light_solver.solve
+    seen = []
+
+    def recorded(problem, barrier, bounds):
+        v, info = real(problem, barrier, bounds)
+        seen.append((v, bounds))
+        return v, info
+
+    light_solver.solve = recorded
     for k in range(40):
         u = ctrl.step(plant.state, k * DT)
         plant.step(u, DT)
-    assert ctrl._light and np.all(np.isfinite(u))
-    broken = {"calls": 0}
-    real = light_solver.solve
+    assert ctrl._light and np.all(np.isfinite(u)) and len(seen) == 40
+    for v, (lo, hi) in seen:
+        assert np.all(v >= lo) and np.all(v <= hi)
+    lo, hi = seen[-1][1]
+    du = ctrl.limits.du_max[1]
+    assert np.isfinite(du) and np.allclose(hi[:, 1] - lo[:, 1], 2 * du)     # the steering's bounds: the rate limit
+    riding = {"calls": 0, "saturated": int(LIGHT_SATURATION * ctrl.N) + 1}
 
-    def too_fast(problem, barrier):        # a light plan asking for a steering step of 0.1 rad
-        broken["calls"] += 1
-        v, info = real(problem, barrier)
-        v = v.copy()
-        v[3, 1] += 0.1
-        return v, info
+    def rides(problem, barrier, bounds):
+        riding["calls"] += 1
+        v, info = real(problem, barrier, bounds)
+        return v, dataclasses.replace(info, saturated=riding["saturated"])
 
-    light_solver.solve = too_fast
+    light_solver.solve = rides
     t = 40 * DT
     ctrl.step(plant.state, t)
-    assert broken["calls"] == 1 and not ctrl._light and ctrl._heavy_until == pytest.approx(t + ctrl.params.light_hold)
+    assert riding["calls"] == 1 and not ctrl._light and ctrl._heavy_until == pytest.approx(t + ctrl.params.light_hold)
     ctrl.step(plant.state, t + DT)            # within the hold the light weights are not tried
-    assert broken["calls"] == 1 and not ctrl._light
-    light_solver.solve = real
+    assert riding["calls"] == 1 and not ctrl._light
+    riding["saturated"] = int(LIGHT_SATURATION * ctrl.N)       # at the fraction: kept
     ctrl.step(plant.state, t + ctrl.params.light_hold + DT)
-    assert ctrl._light
+    assert riding["calls"] == 2 and ctrl._light
+
+
+def test_a_start_off_the_routes_heading_is_driven_on_the_light_weights():
+    """racing_track starts the car 0.19 rad off the route's heading: the first light plans ride the
+    steering rate at a few steps and are kept (unbounded, they broke the rate limit and the heavy
+    weights took the first seconds, overshooting the plan by 0.3 m)."""
+    scenario = load_scenario("racing_track")
+    ctrl = make_vflpc(scenario)
+    plant = make_plant(scenario, 0)
+    saturated = []
+    for k in range(20):
+        plant.step(ctrl.step(plant.state, k * DT), DT)
+        assert ctrl._light
+        saturated.append(ctrl.last_info.saturated)
+    assert max(saturated) > 0
 
 
 def test_light_weights_need_the_cruise_weights_and_a_speed_band():
@@ -247,9 +275,9 @@ def test_light_weights_only_within_their_speed_band(straight, monkeypatch):
         solver = ctrl._light_mode[1]
         real = solver.solve
 
-        def counted(problem, barrier, real=real):
+        def counted(problem, barrier, bounds, real=real):
             tried["calls"] += 1
-            return real(problem, barrier)
+            return real(problem, barrier, bounds)
 
         solver.solve = counted
         for k in range(20):

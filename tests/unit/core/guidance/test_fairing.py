@@ -217,3 +217,42 @@ def test_an_active_set_stopped_at_its_round_cap_returns_a_path_that_keeps_every_
     x, _ = fairing.solve_active_set(r, (SPACING / 4.0) ** 4, n, b, pin_end=True, loop=loop)
     gap = np.where(np.isfinite(b), np.einsum("ij,ij->i", n, x) - b, 0.0)
     assert gap[2:-1].min() > -fairing.VIOLATION
+
+
+def _ring_arc(radius=15.0, arc=40.0, step=0.1):
+    """A left bend: an arc of a ring (centre (0, radius)) from the origin heading +x."""
+    a = np.arange(0.0, arc, step) / radius
+    return np.column_stack([radius * np.sin(a), radius * (1.0 - np.cos(a))])
+
+
+def test_a_free_end_in_a_bend_stays_in_the_bend(monkeypatch):
+    """A plan on a 15 m ring that starts off the robot's heading is faired; its free end stays on the
+    ring (a bending-energy minimiser's free end is straight: without the lead-out it left the ring)."""
+    import vflpcd.core.guidance.fairing as fairing
+
+    xy = _ring_arc()
+    heading = np.array([np.cos(0.3), -np.sin(0.3)])          # 0.3 rad right of the ring's tangent
+    off_ring, shipped = {}, fairing.LEAD_OUT
+    for lead in (shipped, 0.0):
+        monkeypatch.setattr(fairing, "LEAD_OUT", lead)
+        out = fair_path(xy, np.zeros(len(xy)), 0.139, _values([]), heading=heading)
+        off_ring[lead] = abs(np.linalg.norm(out[-1] - [0.0, 15.0]) - 15.0)
+        assert menger_curvature(out).max() <= 0.139
+        np.testing.assert_allclose(out[0], xy[0], atol=1e-6)
+    assert off_ring[shipped] < 0.4 and off_ring[0.0] > 2.0       # 0.28 m and 3.25 m
+
+
+def test_the_lead_out_continues_the_end_on_its_circle_at_most_at_the_limit():
+    from vflpcd.core.guidance.fairing import lead_out
+
+    xy = _ring_arc(step=SPACING)
+    t = np.arange(len(xy)) * 0.05
+    ext, te = lead_out(xy, t, 8.0, 0.139)
+    tail = ext[len(xy):]
+    assert len(tail) == int(np.ceil(8.0 / SPACING))
+    np.testing.assert_allclose(np.linalg.norm(tail - [0.0, 15.0], axis=1), 15.0, atol=0.02)
+    np.testing.assert_allclose(np.diff(te[len(xy) - 1:]), 0.05)
+    tight, _ = lead_out(_ring_arc(radius=3.0, arc=12.0, step=SPACING), t[:48], 8.0, 0.139)   # 1/3 1/m: capped
+    assert menger_curvature(tight[48:]).max() <= 0.139 + 1e-9
+    flat = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
+    assert lead_out(flat, np.arange(10.0), 8.0, 0.139)[0] is flat        # a 3-D path is left as it is
