@@ -252,8 +252,9 @@ class PlannerBase:
         is reached, lets it (``tighten.py``, stiffness ``tight_length``), and speed-planned again:
         (xy, s, kappa, v). None when that is 0, when the stretch has no obstacle, when no tight path
         exists, or when the re-timed tight path (a shorter path is reached earlier) comes closer to
-        a mover than the clearance and than the field's timed path does (the movers are taken at the
-        tight path's own times for up to ``MOVER_PASSES`` rounds)."""
+        a mover than the clearance and than the field's timed path does, or brings the body into a
+        mover's shape (``touches_mover``) (the movers are taken at the tight path's own times for up
+        to ``MOVER_PASSES`` rounds)."""
         p = self.params
         if p.tight_length <= 0.0 or not (prepared.statics or movers):
             return None
@@ -272,7 +273,7 @@ class PlannerBase:
             s_t, kappa, v_t = plan_speed(out[0], self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
                                          v_end=0.0 if goal else None)
             trajectory = timed_trajectory(out[0], s_t, v_t, t0, self.dt)
-            if not moving or self.least_gap(trajectory, moving) >= floor:
+            if not moving or (self.least_gap(trajectory, moving) >= floor and not self.touches_mover(movers, trajectory)):
                 return out[0], s_t, kappa, v_t
             # the shorter path is reached earlier: each field point is taken at the time the tight
             # path passes it (its nearest tight point's), and the movers there, next round
@@ -323,18 +324,33 @@ class PlannerBase:
         return any(np.any(self._values(m.implicit, trajectory.pos, trajectory.t) <= (1.0 + slack) * m.implicit.c)
                    for m in movers)
 
-    def followed(self, movers, paths, t0: float, v0: float):
+    def touches_mover(self, movers: Sequence[ObstacleState], trajectory: Trajectory) -> bool:
+        """Whether the body's covering discs along the timed trajectory come into a moving obstacle's
+        shape (``movers``' states, constant velocity) closer than they are at its start (a plan that
+        starts beside a mover may stay as close, not come closer). The field's regions are fits of
+        the grown shapes, and a path that enters them by less than ``FOLLOW_SLACK`` of their level
+        can still bring the car's corner onto a slow car's rear: `bench variants` seed 22 planned a
+        late swerve past a slow car whose discs entered it by 0.46 m, and the car came within
+        0.10 m of it."""
+        moving = [Keepout(o, 0.0) for o in movers if o.moving]
+        if not moving:
+            return False
+        gaps = disc_gaps(trajectory.pos, self.body, moving, trajectory.t)
+        return bool(np.min(gaps) < min(0.0, float(gaps[0])) - CLEAR_TOLERANCE)
+
+    def followed(self, movers, paths, t0: float, v0: float, states: Sequence[ObstacleState] = ()):
         """The first of ``paths`` ((xy, whether it ends at rest), best first) that, speed-planned
         slower (``FOLLOW_SPEEDS`` of v_desired, fastest first), has a trajectory from t0 at v0 that
         meets no mover: a slow car ahead that the path cannot pass is followed. The planner gives
         the lane (its path without the movers) first, the field's path round them second: the
         robot follows in its lane at whatever speed that takes, and crawls along a swerve only when
         the lane is blocked at every speed (a mover coming the other way in it). (xy, s, kappa, v,
-        trajectory), or None when no such speed exists."""
+        trajectory), or None when no such speed exists. ``states``: the movers' states, whose shapes
+        the body must not come into either (``touches_mover``)."""
         for xy, at_rest in paths:
             for f in FOLLOW_SPEEDS:
                 slower = self.timed(xy, f * self.v_desired, v0, t0, at_rest)
-                if not self.meets_mover(movers, slower[3]):
+                if not self.meets_mover(movers, slower[3]) and not self.touches_mover(states, slower[3]):
                     return (xy,) + slower
         return None
 
@@ -546,11 +562,12 @@ class GuidancePlanner(PlannerBase):
             res, xy, s, kappa, v = self._integrate_and_time(field, prepared, start, t0, v0, h, steps,
                                                             fair=k >= passes - 2, integration=res if same else None)
         trajectory = timed_trajectory(xy, s, v, t0, self.dt)
-        if field.movers and self.meets_mover(field.movers, trajectory, FOLLOW_SLACK):
+        if field.movers and (self.meets_mover(field.movers, trajectory, FOLLOW_SLACK)
+                             or self.touches_mover(movers, trajectory)):
             if not may_follow:
                 return None
             lane = self._integrate_and_time(replace(field, movers=[]), prepared, start, t0, v0, h, None)
-            slower = self.followed(field.movers, [(lane[1], _stops(lane[4])), (xy, _stops(v))], t0, v0)
+            slower = self.followed(field.movers, [(lane[1], _stops(lane[4])), (xy, _stops(v))], t0, v0, movers)
             if slower is not None:
                 if slower[0] is lane[1]:
                     res = lane[0]

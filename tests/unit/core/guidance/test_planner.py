@@ -392,3 +392,53 @@ def test_a_crossing_walker_is_yielded_to_while_a_slow_car_ahead_is_passed_tightl
     assert np.max(np.abs(plan.xy[:, 1])) > 1.0                     # it passes the slow car
     assert not planner.meets_mover([field.movers[1]], plan.trajectory)
     assert planner.least_gap(plan.trajectory, [Keepout(slow, planner.tight_clearance(slow))]) > -CLEAR_TOLERANCE
+
+
+def test_the_body_touching_a_mover_is_found_where_the_region_test_lets_it_pass(params):
+    """touches_mover: the body's discs in a mover's shape along the timed trajectory, from no closer
+    than they start."""
+    path = ReferencePath.line([0.0, 0.0], [120.0, 0.0])
+    planner = GuidancePlanner(path, params, 7.0, 3.0, 1.25, 0.05)
+
+    def car(x, y, vx):
+        return ObstacleState(id="car", shape=Box(4.5, 1.9), center=np.array([x, y]), yaw=0.0,
+                             velocity=np.array([vx, 0.0]), stamp=0.0)
+
+    def lane(y0=0.0, y1=0.0):
+        xy = np.column_stack([np.linspace(0.0, 100.0, 401), np.linspace(y0, y1, 401)])
+        s, kappa, v = plan_speed(xy, 7.0, 3.0, params.a_accel, params.a_decel, 7.0)
+        return timed_trajectory(xy, s, v, 0.0, 0.05)
+
+    assert planner.touches_mover([car(20.0, 0.0, 2.0)], lane())           # into the slow car's rear
+    assert not planner.touches_mover([car(20.0, 4.0, 2.0)], lane())       # beside it, a lane over
+    assert not planner.touches_mover([static("post", Circle(0.3), 20.0, 0.0)], lane())   # statics: not its job
+    beside = car(0.0, 1.6, 7.0)                   # alongside at the same speed, discs already in it
+    assert not planner.touches_mover([beside], lane())
+    assert planner.touches_mover([beside], lane(0.0, 1.0))                # and drifting closer
+
+
+def test_a_late_pass_of_a_slow_car_keeps_the_body_out_of_it(params):
+    """`bench variants` seed 22: the slow car starts moving (2.1 m/s) 26 m ahead of the car; the
+    replan asked then passed it by a tight path re-timed so that the body's discs entered its shape
+    by 0.46 m (the field's regions said it passed), and the car came within 0.10 m of its corner."""
+    from sim.bench.variants import variant_toml
+    from vflpcd.controllers.vflpc import make_vflpc
+    from vflpcd.core.vflpc import ReplanJob, plan_job
+
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        f = Path(d) / "variant22.toml"
+        f.write_text(variant_toml(22))
+        scenario = load_scenario(f)
+    planner = make_vflpc(scenario).planner
+    t = 8.95        # what the car knew then (the walker and the slow car moving)
+    slow = ObstacleState("slow_car", Box(4.5, 1.9), np.array([87.554, -0.449]), 0.0, np.array([2.111, 0.0]), t)
+    obstacles = (ObstacleState("pedestrian", Circle(0.431), np.array([42.430, -2.002]), 0.0,
+                               np.array([-0.244, -0.969]), t), slow,
+                 ObstacleState("barrel", Circle(0.6), np.array([63.819, -0.341]), 0.0, np.zeros(2), t))
+    job = ReplanJob(61.652, np.array([61.652, 1.518]), np.array([6.822, 1.092]), 0.1588, t, obstacles)
+    plan = plan_job(planner, job).plan
+    assert planner.least_gap(plan.trajectory, [Keepout(slow, 0.0)]) > 0.3
+    assert not planner.touches_mover([slow], plan.trajectory)
