@@ -240,8 +240,8 @@ class EbRHRL:
             raise ValueError(f"problem of shape N={problem.N}, n={problem.n}, n_u={problem.n_u} "
                              f"does not match the solver's {self.N}, {self.n}, {self.n_u}")
         if bounds is not None:
-            bounds = tuple(np.array(np.broadcast_to(np.asarray(b, float), (self.N, self.n_u))) for b in bounds)
-            if np.any(bounds[0] > bounds[1]):
+            bounds = (self._bound(bounds[0]), self._bound(bounds[1]))
+            if (bounds[0] > bounds[1]).any():
                 raise ValueError("input bounds with lo > hi")
         if self.loop is not None:
             return self._solve_compiled(problem, barrier, bounds)
@@ -273,6 +273,14 @@ class EbRHRL:
             if info.converged or not np.isfinite(eps_a):
                 break
         return target, info
+
+    def _bound(self, b) -> np.ndarray:
+        """A bound as the (N, n_u) C-ordered, writable float array the compiled loop takes (one
+        signature); an array that is one already is used as it is."""
+        if (isinstance(b, np.ndarray) and b.shape == (self.N, self.n_u) and b.dtype == np.float64
+                and b.flags.c_contiguous and b.flags.writeable):
+            return b
+        return np.array(np.broadcast_to(np.asarray(b, float), (self.N, self.n_u)))
 
     def _solve_compiled(self, problem: HorizonProblem, barrier: HorizonBarrier | None,
                         bounds: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, SolveInfo]:

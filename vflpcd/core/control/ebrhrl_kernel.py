@@ -42,7 +42,7 @@ def solve_loop(A_cl, B, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh,
         iterations = it
         saturated = 0
         # step 1: rollout of the actor through x~_{tau+1} = (A - B K) x~ + B W_a' Phi(x~) + c
-        for k in range(N):
+        for k in range(N if not bounded else 0):      # the bounded rollout applies u~ itself
             for i in range(n):
                 for j in range(m):
                     s = 0.0
