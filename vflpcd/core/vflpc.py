@@ -316,7 +316,7 @@ class VFLPC(ControllerBase):
                 m[1].reset()
         self.rate, self.solver = self._cruise_mode
         self._threatened = False
-        self._heavy_until = -np.inf     # the light mode is left until then (its last plan broke the rate limit)
+        self._heavy_until = -np.inf     # the light mode is left until then (its last plan rode the rate limit)
         self._light = False
         self.solver.reset()
         self._plan = None
