@@ -257,7 +257,7 @@ class VFLPC(ControllerBase):
         self._observe_every = max(1, int(round(every)))
         self.N = max(1, int(round(params.horizon_s / self.dt)))
         self._horizon_offsets = self.dt * np.arange(self.N + 1)     # tau dt, tau = 0 .. N
-        self._bounds = tuple(np.zeros((self.N, model.n_u)) for _ in range(3))   # _rate_bounds' arrays
+        self._rate_arrays = tuple(np.zeros((self.N, model.n_u)) for _ in range(3))   # _rate_bounds' (in place)
         self._body = planner.body
         self._road_bend = None                    # the route's bend at its points, for _road_slip
         if self._body.slips:
@@ -639,7 +639,7 @@ class VFLPC(ControllerBase):
         """Bounds (lo, hi) (N, n_u) on the increments v_tau of u~ that keep the command u = u_r + u~
         within the rate limit du_max at every step: u moves by v_tau + (u_r,tau - u_r,tau-1)
         (u~_{-1} = u_prev - u_r,0, so step 0 moves it by v_0); open for an input without a limit."""
-        ref_step, lo, hi = self._bounds          # written in place (no per-tick allocation)
+        ref_step, lo, hi = self._rate_arrays      # written in place (no per-tick allocation)
         np.subtract(problem.u_ref[1:], problem.u_ref[:-1], out=ref_step[1:])
         du = self.limits.du_max
         np.subtract(-du, ref_step, out=lo)

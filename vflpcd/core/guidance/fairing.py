@@ -310,8 +310,8 @@ def lead_out(r: np.ndarray, t: np.ndarray, length: float, kappa_max: float) -> t
     the last step's rate; other paths are returned as they are."""
     if r.shape[1] != 2:
         return r, t
-    m = max(int(round(1.0 / SPACING)), 1)
-    seg = np.diff(r[-m - 1:], axis=0)
+    m = max(int(round(1.0 / SPACING)), 1)   # the end's heading change between its segments' midpoints:
+    seg = np.diff(r[-m - 1:], axis=0)       # speed.heading_curvature is one-sided there (a quarter low)
     ang = np.unwrap(np.arctan2(seg[:, 1], seg[:, 0]))
     kappa = float(np.clip((ang[-1] - ang[0]) / max(SPACING * (len(ang) - 1), 1e-9), -kappa_max, kappa_max))
     n = int(np.ceil(length / SPACING))

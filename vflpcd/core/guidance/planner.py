@@ -138,7 +138,6 @@ class PlannerBase:
         self.kappa_limit = float(kappa_limit)
         self.kappa_max = params.curvature_use * kappa_limit
         self.loops = loops
-        self._recovery: list = []          # the recovery planner once built (``recovery``)
 
     def warm(self) -> None:
         """Load what a replan runs (the compiled loops), so that a worker's first replan does not
@@ -160,15 +159,7 @@ class PlannerBase:
         a robot that ended up close to an obstacle (braked beside it, a pedestrian stepped near), or a
         gap between parked cars narrower than the full margins, may find no drivable path that keeps
         them (the overlapping reactive bands bend the field sharply), and the safety supervisor still
-        keeps its own margin around the exact body. Built once and kept: its obstacles' grids are
-        then prepared once, not at every recovery replan (a recovery replan from a robot beside the
-        parked car of carsim_avoidance took 90-138 ms with a fresh planner, its grids built anew)."""
-        if not self._recovery:
-            self._recovery.append(self._narrowed())
-        return self._recovery[0]
-
-    def _narrowed(self) -> "PlannerBase | None":
-        """``recovery``'s planner, built."""
+        keeps its own margin around the exact body."""
         p = self.params
         if (p.safety_margin <= p.recovery_margin and p.margin_per_speed == 0.0 and p.mover_margin_time == 0.0
                 and p.reactive_margin <= p.recovery_reactive_margin and p.reactive_per_speed == 0.0):
