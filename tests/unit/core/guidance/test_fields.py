@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from vflpcd.core.guidance.field import ActualTerm, GuidanceField, VirtualTerm
-from vflpcd.core.guidance.implicit import E, CirclePath, GraphPath, GuidanceError, LinePath, ObstacleImplicit
+from vflpcd.core.guidance.implicit import (E, CirclePath, GraphPath, GuidanceError, LinePath, ObstacleImplicit,
+                                          _inflated_boundary)
 from vflpcd.core.guidance.primitives import bump, cup_at, row_centre, s_virtual, superellipse_at, unit
 from vflpcd.core.shapes import Box, Box3, Circle, Cylinder, Ellipse, Ellipsoid, Sphere
 
@@ -87,6 +88,16 @@ def test_obstacle_boundaries_enclose_the_grown_shape(shape):
         dp[j] = h
         fd = (o.value(pts[:200] + dp) - o.value(pts[:200] - dp)) / (2 * h)
         assert fd == pytest.approx(g[:200, j], rel=1e-5, abs=1e-7)
+
+
+@pytest.mark.parametrize("shape", SHAPES, ids=lambda s: s.kind)
+def test_inflated_boundary_points_lie_on_the_outer_side_within_the_tolerance(shape):
+    pts = _inflated_boundary(shape, 1.5, 200)
+    off = shape.signed_distance(pts, np.zeros(shape.dim)) - 1.5
+    assert off.min() >= 0.0 and off.max() <= 1e-12
+    loose = _inflated_boundary(shape, 1.5, 200, tol=1e-6)
+    off = shape.signed_distance(loose, np.zeros(shape.dim)) - 1.5
+    assert off.min() >= 0.0 and off.max() <= 1e-6
 
 
 def test_moving_obstacle_translates_with_time():
