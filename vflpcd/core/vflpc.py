@@ -43,6 +43,7 @@ from vflpcd.core.control.barrier import HorizonBarrier, no_barrier, safety_point
 from vflpcd.core.control.ebrhrl import EbRHRL, KernelFeatures
 from vflpcd.core.control.error_model import ErrorModel, Limits, TickFrame
 from vflpcd.core.control.game_region import threats
+from vflpcd.core.control.horizon_reference import HorizonReference
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
 from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
@@ -320,7 +321,7 @@ class VFLPC(ControllerBase):
         self._light = False
         self.solver.reset()
         self._plan = None
-        self._slip = None               # the plan's slip series (_road_slip), None: none
+        self._horizon = None            # the plan's reference rows (_reference_rows)
         self._ends_path = False
         self._ticks = 0
         self._signature: dict[str, np.ndarray] = {}
@@ -427,7 +428,7 @@ class VFLPC(ControllerBase):
                 self.replan_failed(job, f"refused: {refused}")
                 return
         self._plan, self._ends_path = plan, result.ends_path
-        self._slip = self._road_slip(plan)      # between ticks, not in the next tick
+        self._horizon = self._reference_rows(plan)      # between ticks, not in the next tick
         self._signature = _velocities(job.obstacles)
         if self._asked is not None and self._asked[0] is job:
             self._asked = None              # the newest picture asked for is the one now planned
@@ -549,30 +550,35 @@ class VFLPC(ControllerBase):
         self._asked = (job, _velocities(job.obstacles), self.replan_failures)
 
     def _reference(self, t: float) -> np.ndarray:
-        """World reference states (N + 1, n_x) at t + tau dt, in the model's state order. A car's
-        heading and body velocities are those it has on the path at its steady slip in the road's
-        bends (``_road_slip``): the path gives the course, the car's yaw lies beta off it."""
-        planar = self.errors.layout.kind == "planar"
-        series = ("psi", "v", "omega", "pos") if planar else ("v", "pos")
-        times = t + self._horizon_offsets
-        smp = self._plan.trajectory.sample(times, series)
-        if planar:
-            psi, vx, vy = smp["psi"], smp["v"], 0.0
-            if self._slip is not None:
-                beta = np.interp(times, self._plan.trajectory.t, self._slip)
-                psi, vx, vy = psi - beta, vx * np.cos(beta), vx * np.sin(beta)
-            cols = {"X": smp["pos"][:, 0], "Y": smp["pos"][:, 1], "psi": psi, "yaw": psi,
-                    "vx": vx, "vy": vy, "omega": smp["omega"]}
+        """World reference states (N + 1, n_x) at t + tau dt, in the model's state order
+        (``_reference_rows``; a buffer rewritten by the next tick)."""
+        return self._horizon.at(t)
+
+    def _reference_rows(self, plan) -> HorizonReference:
+        """The plan's reference states at its trajectory's times, in the model's state order, as a
+        ``HorizonReference`` (read at every tick). A car's heading and body velocities are those it
+        has on the path at its steady slip in the road's bends (``_road_slip``): the path gives the
+        course, the car's yaw lies beta off it. A quadrotor's velocity is the speed along the path's
+        tangent."""
+        traj = plan.trajectory
+        if self.errors.layout.kind == "planar":
+            psi, vx, vy = traj.psi, traj.v, np.zeros_like(traj.v)
+            slip = self._road_slip(plan)
+            if slip is not None:
+                psi, vx, vy = psi - slip, traj.v * np.cos(slip), traj.v * np.sin(slip)
+            cols = {"X": traj.pos[:, 0], "Y": traj.pos[:, 1], "psi": psi, "yaw": psi,
+                    "vx": vx, "vy": vy, "omega": traj.omega}
         else:
-            tangent = unit_differences(smp["pos"])
-            v = tangent * smp["v"][:, None]
-            cols = {"X": smp["pos"][:, 0], "Y": smp["pos"][:, 1], "Z": smp["pos"][:, 2],
+            v = unit_differences(traj.pos) * traj.v[:, None] if len(traj.t) > 1 else np.zeros_like(traj.pos)
+            cols = {"X": traj.pos[:, 0], "Y": traj.pos[:, 1], "Z": traj.pos[:, 2],
                     "vx": v[:, 0], "vy": v[:, 1], "vz": v[:, 2]}
-        out = np.zeros((self.N + 1, self.model.n_x))
-        for j, name in enumerate(self.model.state_names):
+        names = self.model.state_names
+        rows = np.zeros((len(traj.t), self.model.n_x))
+        for j, name in enumerate(names):
             if name in cols:
-                out[:, j] = cols[name]
-        return out
+                rows[:, j] = cols[name]
+        stopped = np.array([n in ("vx", "vy", "vz", "omega") for n in names])
+        return HorizonReference(traj.t, rows, stopped, self.dt, self.N)
 
     def _road_slip(self, plan) -> np.ndarray | None:
         """The car's steady slip angle beta (rad, ``Body.slip_angle``) at each point of ``plan``'s

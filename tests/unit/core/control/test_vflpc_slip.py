@@ -100,7 +100,7 @@ def test_a_sharp_corner_of_a_polyline_road_turns_the_reference_no_more_than_the_
     ctrl = make_vflpc(sc)
     plant = make_plant(sc, 0)
     ctrl.step(plant.state, 0.0)
-    slip = ctrl._slip
+    slip = ctrl._road_slip(ctrl.current_plan)
     bound = np.arcsin(ctrl._body.rear_axle * ctrl.planner.kappa_limit)
     assert np.max(np.abs(slip)) > 0.5 * bound                   # the corner is in the plan
     assert np.max(np.abs(slip)) <= bound + 1e-12
