@@ -39,7 +39,7 @@ from typing import Protocol, Sequence
 
 import numpy as np
 
-from vflpcd.core.control.barrier import HorizonBarrier, no_barrier, safety_points
+from vflpcd.core.control.barrier import HorizonBarrier, safety_points
 from vflpcd.core.control.ebrhrl import EbRHRL, KernelFeatures
 from vflpcd.core.control.error_model import ErrorModel, Limits, TickFrame
 from vflpcd.core.control.game_region import threats
@@ -259,6 +259,8 @@ class VFLPC(ControllerBase):
         self.N = max(1, int(round(params.horizon_s / self.dt)))
         self._horizon_offsets = self.dt * np.arange(self.N + 1)     # tau dt, tau = 0 .. N
         self._rate_arrays = tuple(np.zeros((self.N, model.n_u)) for _ in range(3))   # _rate_bounds' (in place)
+        d = planner.dim
+        self._no_threat = (np.zeros((0, self.N + 1, d)), np.zeros((0, self.N + 1, d)), np.zeros(0))   # x_p, n_p, mu
         self._body = planner.body
         self._road_bend = None                    # the route's bend at its points, for _road_slip
         if self._body.slips:
@@ -657,23 +659,21 @@ class VFLPC(ControllerBase):
         idx = self._pos_index
         p_ref = frame.x_r[:, idx]
         p = self.params
-        if not obstacles or p.mu == 0.0 or p.max_threats == 0:
-            return no_barrier(idx, p_ref)
-        obstacles = [o for o in obstacles if o.moving]      # static obstacles are the guidance's
-        if not obstacles:
-            return no_barrier(idx, p_ref)
+        movers = [o for o in obstacles if o.moving] if p.mu != 0.0 and p.max_threats != 0 else []
+        if not movers:                                      # static obstacles are the guidance's
+            return HorizonBarrier(idx, p_ref, *self._no_threat)
         grow = self.body_radius + self.safety_margin
-        centers = np.array([o.center_at(t) for o in obstacles])
-        l = np.array([o.shape.bounding_radius() for o in obstacles]) + grow
-        mask = threats(pos, vel, centers, np.array([o.velocity for o in obstacles]), l, p.l_safe)
+        centers = np.array([o.center_at(t) for o in movers])
+        l = [o.shape.bounding_radius() + grow for o in movers]
+        mask = threats(pos, vel, centers, np.array([o.velocity for o in movers]), l, p.l_safe)
+        if not mask.any():
+            return HorizonBarrier(idx, p_ref, *self._no_threat)
         chosen = sorted(np.flatnonzero(mask), key=lambda i: vector_norm(centers[i] - pos))[: p.max_threats]
-        self.last_threats = tuple(obstacles[i].id for i in chosen)
-        if not chosen:
-            return no_barrier(idx, p_ref)
+        self.last_threats = tuple(movers[i].id for i in chosen)
         times = t + self._horizon_offsets
         xs, ns = [], []
         for i in chosen:
-            x_p, n_p = safety_points(obstacles[i], p_world, times, grow)
+            x_p, n_p = safety_points(movers[i], p_world, times, grow)
             xs.append(self.errors.to_window(frame, x_p))
             ns.append(self.errors.to_window(frame, n_p, vectors=True))
         return HorizonBarrier(idx, p_ref, np.array(xs), np.array(ns), np.full(len(chosen), p.mu), p.barrier_length)

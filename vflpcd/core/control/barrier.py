@@ -24,7 +24,6 @@ with hard constraints (``halfplanes``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -105,10 +104,3 @@ class HorizonBarrier:
             G[:, k][:, self.pos_index] = -self.normal[k]
             g[:, k] = np.einsum("td,td->t", self.normal[k], self.p_ref - self.x_p[k])
         return G, g
-
-
-def no_barrier(pos_index: Sequence[int], p_ref: np.ndarray) -> HorizonBarrier:
-    """The barrier with no threatening obstacle (mu_o = 0 everywhere, region E_c)."""
-    T, d = np.asarray(p_ref).shape
-    return HorizonBarrier(np.asarray(pos_index), np.asarray(p_ref, float), np.zeros((0, T, d)),
-                          np.zeros((0, T, d)), np.zeros(0))

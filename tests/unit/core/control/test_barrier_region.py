@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vflpcd.core.control.barrier import HorizonBarrier, no_barrier, safety_points
+from vflpcd.core.control.barrier import HorizonBarrier, safety_points
 from vflpcd.core.control.game_region import bup_angle, evader_frame, in_region, threats
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.shapes import Box, Circle
@@ -103,7 +103,7 @@ def test_bad_barrier_input_is_rejected():
         with pytest.raises(ValueError):
             HorizonBarrier(np.array([0, 1]), np.zeros((2, 2)), np.zeros((0, 2, 2)), np.zeros((0, 2, 2)), np.zeros(0),
                            length)
-    assert no_barrier([0, 1], np.zeros((2, 2))).count == 0
+    assert HorizonBarrier(np.array([0, 1]), np.zeros((2, 2)), np.zeros((0, 2, 2)), np.zeros((0, 2, 2)), np.zeros(0)).count == 0
 
 
 def test_the_region_takes_scalar_or_per_pursuer_distances_alike():
