@@ -97,13 +97,15 @@ class ErrorModel:
         self._A_N = np.broadcast_to(self.A, (self.N, self.n, self.n))
         self._B_N = np.broadcast_to(self.B, (self.N, self.n, model.n_u))
         self.layout = PoseLayout.of(model.state_names)
+        self._lift = model.lifter(self.N + 2)        # the robot and the N + 1 reference states of a tick
         self._no_G, self._no_g = np.zeros((self.N + 1, 0, self.n)), np.zeros((self.N + 1, 0))   # no half-planes (empty)
 
     def frame(self, state: np.ndarray, reference: np.ndarray) -> TickFrame:
         """Window frame of the world state (n_x,) and world reference (N + 1, n_x), lifted."""
         window = np.empty((len(reference) + 1, self.model.n_x))
         window[0], window[1:] = state, reference
-        U = self.model.lift(window_in_place(window, self.layout))
+        U = self._lift(window_in_place(window, self.layout)) if len(window) == self.N + 2 else \
+            self.model.lift(window_in_place(window, self.layout))
         return TickFrame(np.asarray(state, float), U[0], U[1:], window[1:])
 
     def problem(self, frame: TickFrame, u_prev: np.ndarray, gp: FITCGP | None = None) -> HorizonProblem:

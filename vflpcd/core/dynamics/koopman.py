@@ -98,3 +98,38 @@ class KoopmanModel(LiftedLinearModel):
         out[..., :-1] = self.encode(x)
         out[..., -1] = 1.0
         return out
+
+    def lifter(self, rows: int) -> "BufferedLift":
+        return BufferedLift(self, rows)
+
+
+class BufferedLift:
+    """``KoopmanModel.lift`` of ``rows`` states (rows, n_x) at a time, the same operations written
+    into arrays allocated once (the same numbers); each call returns a new (rows, n_K) array."""
+
+    def __init__(self, model: KoopmanModel, rows: int) -> None:
+        self.n_x, self.n_K = model.n_x, model.n_K
+        self._mean, self._std = model.x_mean, model.x_std
+        self._w, self._b = model._w32, model._b32
+        self._x = np.empty((rows, model.n_x))
+        self._h = [np.empty((rows, model.n_x), np.float32)] + [np.empty((rows, W.shape[1]), np.float32)
+                                                               for W in self._w]
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        np.subtract(x, self._mean, out=self._x)             # normalise_state
+        np.divide(self._x, self._std, out=self._x)
+        h = self._h[0]
+        h[:] = self._x                                        # encoder_forward, in float32
+        last = len(self._w) - 1
+        for i, (W, b) in enumerate(zip(self._w, self._b)):
+            out = self._h[i + 1]
+            np.matmul(h, W, out=out)
+            out += b
+            if i < last:
+                np.tanh(out, out=out)
+            h = out
+        U = np.empty((len(x), self.n_K))
+        U[:, : self.n_x] = x
+        U[:, self.n_x:-1] = h
+        U[:, -1] = 1.0
+        return U

@@ -50,9 +50,10 @@ gives back w (with the heading unwrapped along the window).
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -105,6 +106,8 @@ def window_in_place(w: np.ndarray, lay: PoseLayout) -> np.ndarray:
         w[..., p] = w[..., p] - w[..., :1, p]
         return w
     i, j = lay.position
+    if w.ndim == 2:                 # one window (a tick's): its first pose in floats
+        return _one_planar_window(w, i, j, lay.heading)
     dx, dy = w[..., i] - w[..., :1, i], w[..., j] - w[..., :1, j]
     psi = unwrap_angles(w[..., lay.heading])
     psi0 = psi[..., :1]
@@ -112,6 +115,21 @@ def window_in_place(w: np.ndarray, lay: PoseLayout) -> np.ndarray:
     w[..., i] = c * dx + s * dy
     w[..., j] = -s * dx + c * dy
     w[..., lay.heading] = psi - psi0
+    return w
+
+
+def _one_planar_window(w: np.ndarray, i: int, j: int, h: int) -> np.ndarray:
+    """``window_in_place`` of one planar window w (T, n_x) (position columns i, j, heading h)."""
+    x0, y0 = float(w[0, i]), float(w[0, j])
+    psi = w[:, h]
+    if not (np.abs(psi[1:] - psi[:-1]) < np.pi).all():
+        psi[:] = np.unwrap(psi)
+    psi0 = float(psi[0])
+    c, s = math.cos(psi0), math.sin(psi0)
+    dx, dy = w[:, i] - x0, w[:, j] - y0
+    w[:, i] = c * dx + s * dy
+    w[:, j] = c * dy - s * dx
+    psi -= psi0
     return w
 
 
@@ -270,6 +288,11 @@ class LiftedLinearModel(ABC):
         out[..., : self.n_x] = x
         out[..., self.n_x:] = self.rho(x)
         return out
+
+    def lifter(self, rows: int) -> Callable[[np.ndarray], np.ndarray]:
+        """A lift of ``rows`` states (rows, n_x) at a time into a new (rows, n_K) array, for a caller
+        that lifts that many at every tick (a model may keep its intermediate arrays); ``lift`` here."""
+        return self.lift
 
     # ------------------------------------------------------------------ prediction
     def rollout(self, x0: np.ndarray, controls: np.ndarray) -> np.ndarray:
