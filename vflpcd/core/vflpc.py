@@ -247,7 +247,8 @@ class VFLPC(ControllerBase):
         missing = [n for n in model.state_names if n not in self.state_names]
         if missing:
             raise ValueError(f"the platform state {self.state_names} lacks the model's {missing}")
-        self._select = np.array([self.state_names.index(n) for n in model.state_names])
+        select = [self.state_names.index(n) for n in model.state_names]
+        self._select = np.array(select) if select != list(range(len(self.state_names))) else None   # None: all, in order
         self.name = name
         self.dt = model.dt
         self.period = float(period) if period is not None else self.dt
@@ -482,9 +483,9 @@ class VFLPC(ControllerBase):
     def _inputs(self, state: np.ndarray, obstacles: Sequence[ObstacleState]):
         """Checked model state, obstacles, position and velocity; remembers them for a forced replan."""
         state = np.asarray(state, float)
-        if state.shape != (len(self.state_names),) or not np.isfinite(state).all():
+        if state.shape != (len(self.state_names),) or not all(map(math.isfinite, state.tolist())):
             raise ValueError(f"state must be {len(self.state_names)} finite numbers {self.state_names}, got {state!r}")
-        state = state[self._select]
+        state = state[self._select] if self._select is not None else state.copy()
         obstacles = tuple(obstacles)
         if obstacles:
             _check_obstacles(obstacles, self.dim)
@@ -510,8 +511,9 @@ class VFLPC(ControllerBase):
 
     def _velocity(self, state: np.ndarray) -> np.ndarray:
         if self.errors.layout.kind == "planar":
-            psi, vx, vy = state[self._vel_index]
-            c, s = np.cos(psi), np.sin(psi)
+            h, i, j = self._vel_index
+            psi, vx, vy = float(state[h]), float(state[i]), float(state[j])
+            c, s = math.cos(psi), math.sin(psi)
             return np.array([vx * c - vy * s, vx * s + vy * c])
         return state[self._vel_index]
 

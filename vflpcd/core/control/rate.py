@@ -42,6 +42,7 @@ class RateForm:
     K_terminal: np.ndarray
     gamma: float
     _pair: list = field(default_factory=lambda: [None, None, None], compare=False, repr=False)
+    _blank: dict = field(default_factory=dict, compare=False, repr=False)     # N -> _Blank
 
     @classmethod
     def of(cls, A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, R_rate: np.ndarray,
@@ -60,15 +61,18 @@ class RateForm:
     def problem(self, p: HorizonProblem) -> HorizonProblem:
         """The increment form of problem p (module docstring); its u_ref is the previous deviation
         carried along (zeros: v has no reference) and its input bounds are open."""
-        N, n_u = p.N, self.n_u
+        N, n_u, n = p.N, self.n_u, self.n
         A, B = self._augmented(p.A, p.B)
-        c = np.concatenate([p.c, np.zeros((N, n_u))], axis=1)
-        x0 = np.concatenate([p.x0, p.u_prev - p.u_ref[0]])
-        G = np.concatenate([p.G, np.zeros(p.G.shape[:2] + (n_u,))], axis=2)
-        open_ = np.full(n_u, np.inf)
+        c = np.zeros((N, n + n_u))
+        c[:, :n] = p.c
+        x0 = np.empty(n + n_u)
+        x0[:n] = p.x0
+        np.subtract(p.u_prev, p.u_ref[0], out=x0[n:])
+        blank = self._blank.get(N) or self._blank.setdefault(N, _blank(N, n, n_u))
+        G = blank.G if p.G.shape == (N + 1, 0, n) else np.concatenate([p.G, np.zeros(p.G.shape[:2] + (n_u,))], axis=2)
         return HorizonProblem(A=A, B=B, c=c, x0=x0, Q=self.Q, R=self.R, P=self.P, gamma=p.gamma,
-                              u_ref=np.zeros((N, n_u)), u_min=-open_, u_max=open_, du_max=open_,
-                              u_prev=np.zeros(n_u), G=G, g=p.g)
+                              u_ref=blank.u_ref, u_min=blank.lower, u_max=blank.upper, du_max=blank.upper,
+                              u_prev=blank.u_prev, G=G, g=p.g)
 
     def _augmented(self, A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """augment_pair(A, B), kept while the problem's A and B are the same arrays (the nominal
@@ -82,6 +86,25 @@ class RateForm:
     def deviation(self, z0: np.ndarray, v0: np.ndarray) -> np.ndarray:
         """The first control deviation u~_0 = u~_{-1} + v_0 from the increment-form start z0."""
         return z0[self.n:] + v0
+
+
+@dataclass(frozen=True)
+class _Blank:
+    """The arrays of an increment problem that are the same at every tick (read-only): no reference,
+    open bounds, no half-plane."""
+
+    u_ref: np.ndarray
+    u_prev: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    G: np.ndarray
+
+
+def _blank(N: int, n: int, n_u: int) -> _Blank:
+    arrays = (np.zeros((N, n_u)), np.zeros(n_u), np.full(n_u, -np.inf), np.full(n_u, np.inf), np.zeros((N + 1, 0, n + n_u)))
+    for a in arrays:
+        a.flags.writeable = False
+    return _Blank(*arrays)
 
 
 def augment_pair(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

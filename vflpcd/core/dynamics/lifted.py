@@ -120,15 +120,20 @@ def window_in_place(w: np.ndarray, lay: PoseLayout) -> np.ndarray:
 
 def _one_planar_window(w: np.ndarray, i: int, j: int, h: int) -> np.ndarray:
     """``window_in_place`` of one planar window w (T, n_x) (position columns i, j, heading h)."""
-    x0, y0 = float(w[0, i]), float(w[0, j])
     psi = w[:, h]
-    if not (np.abs(psi[1:] - psi[:-1]) < np.pi).all():
+    if not float(psi.max()) - float(psi.min()) < np.pi and not (np.abs(psi[1:] - psi[:-1]) < np.pi).all():
         psi[:] = np.unwrap(psi)
     psi0 = float(psi[0])
     c, s = math.cos(psi0), math.sin(psi0)
-    dx, dy = w[:, i] - x0, w[:, j] - y0
-    w[:, i] = c * dx + s * dy
-    w[:, j] = c * dy - s * dx
+    if j == i + 1:                  # [dx, dy] [[c, -s], [s, c]] in one product
+        p = w[:, i:j + 1]
+        p -= p[0].copy()
+        p[:] = p @ np.array([[c, -s], [s, c]])
+    else:
+        x0, y0 = float(w[0, i]), float(w[0, j])
+        dx, dy = w[:, i] - x0, w[:, j] - y0
+        w[:, i] = c * dx + s * dy
+        w[:, j] = c * dy - s * dx
     psi -= psi0
     return w
 
