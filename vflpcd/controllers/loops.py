@@ -2,6 +2,7 @@
 
 Core stays pure (numpy and scipy only, no files): it writes a loop as plain Python
 (``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.control.scheduled_kernel.problem_loop``,
+``vflpcd.core.control.tick_kernel``'s ``window_loop`` and ``linearisation_loop``,
 ``vflpcd.core.path_kernel.nearest_segment``,
 and the guidance's ``active_set_kernel.solve_loop``, ``integrate_kernel.step_loop`` and
 ``half_plane_kernel.half_planes_loop``) and takes the compiled function as an argument. This
@@ -35,6 +36,20 @@ def scheduled_problem_loop():
     from vflpcd.core.control.scheduled_kernel import problem_loop
 
     return _compiled("scheduled_problem", problem_loop, _warm_scheduled)
+
+
+@lru_cache(maxsize=1)
+def tick_loops():
+    """``tick_kernel``'s loops (the tick's window and nominal linearisation) compiled and loaded
+    (``_warm_tick``), as ``error_model.TickLoops``, or None without numba."""
+    from vflpcd.core.control.error_model import TickLoops
+    from vflpcd.core.control.tick_kernel import linearisation_loop, window_loop
+
+    window = _compiled("tick_window", window_loop, _warm_tick_window)
+    if window is None:
+        return None
+    return TickLoops(window=window, linearisation=_compiled("tick_linearisation", linearisation_loop,
+                                                           _warm_tick_linearisation))
 
 
 @lru_cache(maxsize=1)
@@ -92,7 +107,7 @@ def compile_all() -> dict[str, bool]:
     that later processes load them from the cache in milliseconds instead of compiling for
     10-15 s of CPU (docs/results.md, "The test suite", for what compiling beside real-time runs did)."""
     return {fn.__name__: fn() is not None
-            for fn in (ebrhrl_loop, scheduled_problem_loop, path_loop, guidance_loops)}
+            for fn in (ebrhrl_loop, scheduled_problem_loop, tick_loops, path_loop, guidance_loops)}
 
 
 @lru_cache(maxsize=1)
@@ -147,6 +162,21 @@ def _warm_scheduled(loop) -> None:
     import numpy as np
 
     loop(np.ones((2, 3)), np.eye(3), np.ones((3, 1)), np.zeros((3, 1)), 0, 1, -np.ones(1), np.ones(1))
+
+
+def _warm_tick_window(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``ErrorModel.frame`` passes."""
+    import numpy as np
+
+    loop(np.zeros(3), np.zeros((1, 3)), 2, np.array([0, 1]), 2, np.zeros(3), np.ones(3), np.zeros((2, 3)),
+         np.zeros((2, 3), np.float32))
+
+
+def _warm_tick_linearisation(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``ErrorModel._linearisation`` passes."""
+    import numpy as np
+
+    loop(np.ones((2, 3)), np.eye(3), np.ones((3, 1)), np.ones((1, 1)), 1, -np.ones(1), np.ones(1))
 
 
 def _warm_path(loop) -> None:

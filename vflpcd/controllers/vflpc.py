@@ -15,7 +15,7 @@ from vflpcd.core.guidance.planner3d import GuidancePlanner3D
 from vflpcd.core.guidance.tighten import Body
 from vflpcd.config.params import vflpc_params
 from vflpcd.core.vflpc import VFLPC, VFLPCParams
-from vflpcd.controllers.loops import ebrhrl_loop, guidance_loops, path_loop, scheduled_problem_loop
+from vflpcd.controllers.loops import ebrhrl_loop, guidance_loops, path_loop, scheduled_problem_loop, tick_loops
 from vflpcd.base.paths import config_dir
 from vflpcd.base.tomlread import load_table
 from vflpcd.config.vehicles import state_names
@@ -106,7 +106,8 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
                  scenario.guidance.safety_margin, solver=solver,
                  compensator=compensator_for(model, params) if compensation else None, name=name,
                  state_names=state_names(scenario.platform), period=period, solve_loop=ebrhrl_loop(),
-                 path_loop=path_loop(), problem_loop=scheduled_problem_loop() if model.scheduled else None)
+                 path_loop=path_loop(), problem_loop=scheduled_problem_loop() if model.scheduled else None,
+                 tick_loops=tick_loops())
 
 
 def make_vflpc_ml(scenario, **options) -> VFLPC:

@@ -236,12 +236,13 @@ class VFLPC(ControllerBase):
                  body_radius: float, safety_margin: float, solver: HorizonSolver | None = None,
                  compensator: OnlineCompensator | None = None, name: str = "vflpc",
                  state_names: Sequence[str] | None = None, period: float | None = None, solve_loop=None,
-                 path_loop=None, problem_loop=None) -> None:
+                 path_loop=None, problem_loop=None, tick_loops=None) -> None:
         self.planner, self.model, self.params, self.limits = planner, model, params, limits
         """``period``: the control tick period (default the model's dt); ``limits.du_max`` is per tick;
         ``solve_loop``: Eb-RHRL's iterations compiled (``EbRHRL``'s ``loop``; None: its numpy path);
         ``path_loop``: the path projection's search compiled (``ReferencePath.arc_length_of``'s ``loop``);
-        ``problem_loop``: the horizon of a scheduled model compiled (``ErrorModel``'s ``problem_loop``)."""
+        ``problem_loop``: the horizon of a scheduled model compiled (``ErrorModel``'s ``problem_loop``);
+        ``tick_loops``: the tick's window and nominal linearisation compiled (``ErrorModel``'s)."""
         self._path_loop = path_loop
         self.state_names = tuple(state_names) if state_names is not None else tuple(model.state_names)
         missing = [n for n in model.state_names if n not in self.state_names]
@@ -282,7 +283,7 @@ class VFLPC(ControllerBase):
                                       compensator.comp if compensator is not None else None,
                                       gp_jacobians=params.gp_linearisation == "gp",
                                       schedule_at=planner.v_desired if model.scheduled else None,
-                                      problem_loop=problem_loop)
+                                      problem_loop=problem_loop, tick_loops=tick_loops)
         self.rate = None
         self._threat_mode = None      # (rate form, solver) while a mover is in E_p (R_rate_threat)
         self._light_mode = None       # (rate form, solver) while its plans keep the rate limit (R_rate_light)

@@ -28,14 +28,28 @@ Jacobians and the GP mean alone (w/o ML: 0.194 / 0.192 m).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import scipy.linalg as sl
 
 from vflpcd.core.control.problem import HorizonProblem
+from vflpcd.core.control.tick_kernel import KIND_NONE, KIND_PLANAR, KIND_POSITION
 from vflpcd.core.dynamics.compensation import KoopmanCompensation
+from vflpcd.core.dynamics.koopman import BufferedLift
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout, window_in_place
 from vflpcd.core.dynamics.sparse_gp import FITCGP
+
+
+_KINDS = {"none": KIND_NONE, "position": KIND_POSITION, "planar": KIND_PLANAR}     # PoseLayout.kind
+
+
+@dataclass(frozen=True)
+class TickLoops:
+    """``tick_kernel``'s loops, compiled: ``window_loop`` and ``linearisation_loop``."""
+
+    window: Callable
+    linearisation: Callable
 
 
 @dataclass(frozen=True)
@@ -69,11 +83,13 @@ class ErrorModel:
     (eq. JocabianMatrices) instead of the nominal A, B (module docstring). A model with a scheduled
     input matrix (B + s B_s) has its nominal pair (P, K_terminal, the solvers' priors) at
     s = ``schedule_at`` and its horizon linearised at the reference every tick (``_scheduled_linearisation``;
-    ``problem_loop``: ``scheduled_kernel.problem_loop`` compiled, or None for the numpy path)."""
+    ``problem_loop``: ``scheduled_kernel.problem_loop`` compiled, or None for the numpy path).
+    ``tick_loops``: ``tick_kernel``'s loops compiled (``TickLoops``: the window and the nominal
+    linearisation), or None for the numpy path."""
 
     def __init__(self, model: LiftedLinearModel, Q_x: np.ndarray, q_lift: float, R: np.ndarray, gamma: float,
                  N: int, limits: Limits, comp: KoopmanCompensation | None = None, gp_jacobians: bool = False,
-                 schedule_at: float | None = None, problem_loop=None) -> None:
+                 schedule_at: float | None = None, problem_loop=None, tick_loops=None) -> None:
         if model.scheduled and schedule_at is None:
             raise ValueError(f"a model scheduled on {model.schedule!r} needs the value its nominal pair is taken at")
         A = model.A
@@ -98,14 +114,24 @@ class ErrorModel:
         self._B_N = np.broadcast_to(self.B, (self.N, self.n, model.n_u))
         self.layout = PoseLayout.of(model.state_names)
         self._lift = model.lifter(self.N + 2)        # the robot and the N + 1 reference states of a tick
+        self.tick_loops = tick_loops
+        self._position = np.array(self.layout.position, dtype=np.int64)
+        self._normalised = np.empty((self.N + 2, model.n_x), np.float32)
         self._no_G, self._no_g = np.zeros((self.N + 1, 0, self.n)), np.zeros((self.N + 1, 0))   # no half-planes (empty)
 
     def frame(self, state: np.ndarray, reference: np.ndarray) -> TickFrame:
         """Window frame of the world state (n_x,) and world reference (N + 1, n_x), lifted."""
         window = np.empty((len(reference) + 1, self.model.n_x))
-        window[0], window[1:] = state, reference
-        U = self._lift(window_in_place(window, self.layout)) if len(window) == self.N + 2 else \
-            self.model.lift(window_in_place(window, self.layout))
+        if self.tick_loops is not None and len(window) == self.N + 2:     # the same numbers, compiled
+            lay = self.layout
+            self.tick_loops.window(state, reference, _KINDS[lay.kind], self._position, lay.heading or 0,
+                                   self.model.x_mean, self.model.x_std, window, self._normalised)
+            U = (self._lift.from_normalised(window, self._normalised) if isinstance(self._lift, BufferedLift)
+                 else self._lift(window))
+        else:
+            window[0], window[1:] = state, reference
+            U = self._lift(window_in_place(window, self.layout)) if len(window) == self.N + 2 else \
+                self.model.lift(window_in_place(window, self.layout))
         return TickFrame(np.asarray(state, float), U[0], U[1:], window[1:])
 
     def problem(self, frame: TickFrame, u_prev: np.ndarray, gp: FITCGP | None = None) -> HorizonProblem:
@@ -130,6 +156,9 @@ class ErrorModel:
         nominal next lifted states (N, n_K) and the nominal pair (the same arrays every tick: solvers
         may keep what they derive from them)."""
         m, lim = self.model, self.limits
+        if self.tick_loops is not None:         # the same numbers, compiled
+            u_r, nxt = self.tick_loops.linearisation(U_r, m.A, m.B, self._B_x_pinv, m.n_x, lim.u_min, lim.u_max)
+            return u_r, nxt, self._A_N, self._B_N
         pred = U_r[:-1] @ m.A.T                                           # (N, n_K)
         u_r = (U_r[1:, : m.n_x] - pred[:, : m.n_x]) @ self._B_x_pinv.T
         u_r = np.minimum(np.maximum(u_r, lim.u_min), lim.u_max)

@@ -118,8 +118,12 @@ class BufferedLift:
     def __call__(self, x: np.ndarray) -> np.ndarray:
         np.subtract(x, self._mean, out=self._x)             # normalise_state
         np.divide(self._x, self._std, out=self._x)
-        h = self._h[0]
-        h[:] = self._x                                        # encoder_forward, in float32
+        self._h[0][:] = self._x                              # encoder_forward, in float32
+        return self.from_normalised(x, self._h[0])
+
+    def from_normalised(self, x: np.ndarray, normalised: np.ndarray) -> np.ndarray:
+        """The lift of states x (rows, n_x) whose normalised states (float32) are at hand."""
+        h = normalised
         last = len(self._w) - 1
         for i, (W, b) in enumerate(zip(self._w, self._b)):
             out = self._h[i + 1]

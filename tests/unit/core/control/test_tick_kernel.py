@@ -1,0 +1,66 @@
+"""The tick's window and nominal linearisation compiled (``tick_kernel``) against the numpy path of
+``ErrorModel``: the same frame and problem to 1e-12, for the car's and the quadrotor's models, with
+the heading wrapping inside the window, and with the reference controls clipped."""
+
+import numpy as np
+import pytest
+
+from vflpcd.config.koopman_file import load_koopman
+from vflpcd.core.control.error_model import ErrorModel, Limits, TickLoops
+from vflpcd.core.control.tick_kernel import linearisation_loop, window_loop
+from vflpcd.base.paths import config_dir
+
+N = 20
+
+
+def _models():
+    car = load_koopman(config_dir() / "models" / "dynamic_bicycle.npz")
+    quad = load_koopman(config_dir() / "models" / "quadrotor.npz")
+    return {"car": car, "quad": quad}
+
+
+def _error_model(model, loops):
+    n_u = model.n_u
+    limits = Limits(-np.full(n_u, 0.3), np.full(n_u, 0.3), np.full(n_u, np.inf))
+    Q_x = np.ones(model.n_x)
+    return ErrorModel(model, Q_x, 0.1, np.eye(n_u), 0.95, N, limits, tick_loops=loops)
+
+
+def _states(model, rng, wrap: bool):
+    x0 = rng.normal(size=model.n_x) * 3.0
+    ref = x0 + np.cumsum(rng.normal(size=(N + 1, model.n_x)) * 0.2, axis=0)
+    if wrap and "psi" in model.state_names:      # the heading crosses +-pi inside the window
+        h = list(model.state_names).index("psi")
+        x0[h] = 3.1
+        ref[:, h] = np.angle(np.exp(1j * (3.1 + 0.05 * np.arange(N + 1))))
+    return x0, ref
+
+
+@pytest.fixture(scope="module")
+def compiled():
+    from vflpcd.controllers.loops import tick_loops
+
+    loops = tick_loops()
+    if loops is None:
+        pytest.skip("numba is not installed")
+    return loops
+
+
+@pytest.mark.parametrize("name", ["car", "quad"])
+@pytest.mark.parametrize("wrap", [False, True])
+@pytest.mark.parametrize("run", ["compiled", "as python"])
+def test_the_loops_give_the_numpy_paths_frame_and_problem(compiled, name, wrap, run):
+    model = _models()[name]
+    loops = compiled if run == "compiled" else TickLoops(window=window_loop, linearisation=linearisation_loop)
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        x0, ref = _states(model, rng, wrap)
+        plain, fast = _error_model(model, None), _error_model(model, loops)
+        a, b = plain.frame(x0, ref), fast.frame(x0, ref)
+        for field in ("U", "U_r", "x_r"):
+            np.testing.assert_allclose(getattr(b, field), getattr(a, field), rtol=0, atol=1e-12)
+        u_prev = rng.normal(size=model.n_u) * 0.1
+        p, q = plain.problem(a, u_prev), fast.problem(a, u_prev)
+        assert np.any(np.abs(p.u_ref) >= 0.3)               # some reference controls are clipped
+        for field in ("A", "B", "c", "x0", "u_ref"):
+            np.testing.assert_allclose(getattr(q, field), getattr(p, field), rtol=0, atol=1e-12)
