@@ -185,9 +185,9 @@ def _check_obstacles(obstacles: Sequence[ObstacleState], dim: int) -> None:
             raise ValueError(f"obstacle {o.id!r}: centre and velocity must be {dim} finite numbers")
 
 
-def _velocities(obstacles: Sequence[ObstacleState]) -> dict[str, np.ndarray]:
-    """The obstacle picture a replan is made for: each obstacle's velocity by id."""
-    return {o.id: o.velocity for o in obstacles}
+def _velocities(obstacles: Sequence[ObstacleState]) -> dict[str, list[float]]:
+    """The obstacle picture a replan is made for: each obstacle's velocity by id (floats)."""
+    return {o.id: o.velocity.tolist() for o in obstacles}
 
 
 class HorizonSolver(Protocol):
@@ -328,7 +328,7 @@ class VFLPC(ControllerBase):
         self._horizon = None            # the plan's reference rows (_reference_rows)
         self._ends_path = False
         self._ticks = 0
-        self._signature: dict[str, np.ndarray] = {}
+        self._signature: dict[str, list[float]] = {}
         self._s = None
         self._u_prev: np.ndarray | None = None
         self._last: tuple[TickFrame, np.ndarray] | None = None
@@ -530,7 +530,7 @@ class VFLPC(ControllerBase):
         sig = _velocities(obstacles)
         if sig.keys() != ref.keys():
             return True
-        return any(vector_norm(sig[k] - ref[k]) > self.params.velocity_change for k in sig)
+        return any(math.dist(sig[k], ref[k]) > self.params.velocity_change for k in sig)
 
     def _guidance(self, pos, vel, state, t: float, obstacles) -> None:
         """Replan now if there is no reference yet, else leave a due replan to ``background``."""
