@@ -214,7 +214,7 @@ class PlannerBase:
         straight = graph.straighten(raw)
         while True:
             xy = graph.bend(smooth_path(straight, sigma)) if sigma >= 0.5 else raw
-            if sigma < 0.5 or all(np.all(self._values(term.implicit, xy, t) > term.implicit.c) for term in terms):
+            if sigma < 0.5 or not any(self._reaches(term.implicit, xy, t, term.implicit.c) for term in terms):
                 return xy
             sigma /= 2.0
 
@@ -286,11 +286,16 @@ class PlannerBase:
         return float(np.min(disc_gaps(trajectory.pos, self.body, keepouts, trajectory.t)))
 
     @staticmethod
-    def _values(o: ObstacleImplicit, xy: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """varphi at points xy (K, d) reached at times t (K,) (one evaluation for a static obstacle)."""
-        if not np.any(o.velocity):
-            return o.value(xy)
-        return o.value(_at_stamp(o, xy, t), o.stamp)
+    def _reaches(o: ObstacleImplicit, xy: np.ndarray, t: np.ndarray, level: float) -> bool:
+        """Whether varphi <= level (< 0: inside the reactive region) at some point of xy (K, d)
+        reached at times t (K,). Only the points within o's reach of its centre are evaluated:
+        outside it varphi > 0 (``ObstacleImplicit.reach``)."""
+        pts = _at_stamp(o, xy, t) if np.any(o.velocity) else xy
+        d = pts - o.center
+        near = np.einsum("ij,ij->i", d, d) < o.reach ** 2
+        if not near.any():
+            return False
+        return bool(np.any(o.value(pts[near], o.stamp) <= level))
 
     def splice(self, plan: GuidancePlan, robot: np.ndarray, v_robot: float, t_now: float) -> GuidancePlan | None:
         """A late replan re-timed as if planned now from the robot (``robot`` (d,) at ``t_now`` at
@@ -321,8 +326,7 @@ class PlannerBase:
     def meets_mover(self, movers, trajectory: Trajectory, slack: float = 0.0) -> bool:
         """Whether the timed trajectory enters a moving obstacle's repulsive region (terms ``movers``)
         deeper than ``slack`` times its level |c_i| (0: at all)."""
-        return any(np.any(self._values(m.implicit, trajectory.pos, trajectory.t) <= (1.0 + slack) * m.implicit.c)
-                   for m in movers)
+        return any(self._reaches(m.implicit, trajectory.pos, trajectory.t, (1.0 + slack) * m.implicit.c) for m in movers)
 
     def touches_mover(self, movers: Sequence[ObstacleState], trajectory: Trajectory) -> bool:
         """Whether the body's covering discs along the timed trajectory come into a moving obstacle's
