@@ -193,9 +193,10 @@ class ReferencePath:
                       loop=None) -> float:
         """The arc length s of ``project(p, s_hint, back, ahead)`` alone (no tangent, heading or lateral
         error). ``loop``: ``path_kernel.nearest_segment`` compiled (``vflpcd.controllers.loops``), which
-        searches a planar path's stretch (the same numbers); None, or a 3-D path: the numpy search."""
+        searches the stretch (the same numbers on a planar path, to 1e-12 on a 3-D one); None: the
+        numpy search."""
         p = np.asarray(p, dtype=float)
-        if loop is None or self.dim != 2:
+        if loop is None:
             return self._nearest(p, s_hint, back, ahead)[0]
         idx = self._searched(s_hint, back, ahead)
         if isinstance(idx, slice):

@@ -7,8 +7,9 @@ choice; a NaN distance wins at once, as np.argmin takes the first NaN). A loop c
 ``njit``: ``vflpcd.controllers.loops`` compiles it, outside core) turns it into machine code.
 
 The numbers are the numpy path's exactly for planar paths (each dot product is one sum of two
-products); numpy's einsum adds three products in an order that depends on its SIMD build, so 3-D
-paths keep the numpy path (``ReferencePath.arc_length_of``).
+products); numpy's einsum adds three products in an order that depends on its SIMD build, so on a
+3-D path they agree to a rounding (1e-12), and where two segments lie within a rounding of the
+same distance either may be taken (their feet then lie within a rounding of each other).
 """
 
 from __future__ import annotations

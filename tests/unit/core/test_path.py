@@ -92,6 +92,24 @@ def test_the_nearest_segment_loop_gives_the_numpy_searchs_arc_length(closed):
     assert path.arc_length_of(path.points[3], None, loop=nearest_segment) == path.project(path.points[3]).s
 
 
+def test_on_a_3d_path_the_nearest_segment_loop_gives_the_numpy_searchs_arc_length_to_1e_12():
+    from vflpcd.core.path_kernel import nearest_segment
+
+    loops = [nearest_segment]
+    if importlib.util.find_spec("numba") is not None:
+        from vflpcd.controllers.loops import path_loop
+
+        loops.append(path_loop())
+    rng = np.random.default_rng(6)
+    path = ReferencePath.from_waypoints(np.cumsum(rng.uniform(1.0, 5.0, size=(15, 3)) * [1.0, 0.6, 0.3], axis=0))
+    for _ in range(60):
+        s_hint = rng.choice([None, rng.uniform(0.0, path.length)])
+        p = path.point_at(rng.uniform(0.0, path.length)) + rng.normal(size=3) * rng.choice([0.01, 1.0, 10.0])
+        expected = path.arc_length_of(p, s_hint)
+        for loop in loops:
+            assert abs(path.arc_length_of(p, s_hint, loop=loop) - expected) <= 1e-12
+
+
 @pytest.mark.parametrize("back, ahead", [(10.0, 30.0), (0.0, 5.0), (3.0, 0.0), (60.0, 40.0)])
 def test_a_closed_paths_search_window_holds_every_segment_that_overlaps_it(back, ahead):
     """On a closed path the searched segments (by the sorted arc lengths, across the seam too) are
