@@ -276,7 +276,7 @@ class VFLPC(ControllerBase):
         else:                                           # world velocities
             self._vel_index = np.array([names.index(n) for n in ("vx", "vy", "vz")[: self.dim]])
         span = limits.u_max - limits.u_min        # a first command beyond this bound is a divergence (_solve_with)
-        self._divergence_bound = params.divergence * np.where(np.isfinite(span), span, 1e6)
+        self._divergence_bound = (params.divergence * np.where(np.isfinite(span), span, 1e6)).tolist()
         if model.scheduled and model.schedule != "vx":
             raise ValueError(f"VF-LPC schedules a model's input matrix on the speed vx, not {model.schedule!r}")
         self.errors = em = ErrorModel(model, params.Q_x, params.q_lift, params.R, params.gamma, self.N, limits,
@@ -358,7 +358,6 @@ class VFLPC(ControllerBase):
         self._guidance(pos, vel, state, t, obstacles)
         ref = self._reference(t)
         frame = self.errors.frame(state, ref)
-        p_ref_world = ref[:, self._pos_index]
         observe_now = self._ticks % self._observe_every == 0
         self._ticks += 1
         if observe_now:
@@ -367,7 +366,7 @@ class VFLPC(ControllerBase):
                                                                           self.limits.u_max)
         gp = self.compensator.model if self.compensator is not None else None
         problem = self.errors.problem(frame, u_prev, gp)
-        barrier = self._barrier(frame, p_ref_world, pos, vel, t, obstacles)
+        barrier = self._barrier(frame, ref, pos, vel, t, obstacles)
         self._select_mode()
         if self.rate is not None:
             u_tilde0 = self._solve_increments(problem, barrier, t, vel)
@@ -657,7 +656,8 @@ class VFLPC(ControllerBase):
         np.subtract(du, ref_step, out=hi)
         return lo, hi
 
-    def _barrier(self, frame: TickFrame, p_world: np.ndarray, pos, vel, t: float, obstacles) -> HorizonBarrier:
+    def _barrier(self, frame: TickFrame, ref: np.ndarray, pos, vel, t: float, obstacles) -> HorizonBarrier:
+        """The barrier of the movers in E_p (module docstring, step 4); ``ref``: the world reference states."""
         self.last_threats = ()
         idx = self._pos_index
         p_ref = frame.x_r[:, idx]
@@ -674,6 +674,7 @@ class VFLPC(ControllerBase):
         chosen = sorted(np.flatnonzero(mask), key=lambda i: vector_norm(centers[i] - pos))[: p.max_threats]
         self.last_threats = tuple(movers[i].id for i in chosen)
         times = t + self._horizon_offsets
+        p_world = ref[:, self._pos_index]
         xs, ns = [], []
         for i in chosen:
             x_p, n_p = safety_points(movers[i], p_world, times, grow)
@@ -696,7 +697,7 @@ class VFLPC(ControllerBase):
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             log.warning("event=solver_error reason=%s", exc)
             u_tilde = None
-        if u_tilde is None or not np.isfinite(u_tilde[0]).all() or (np.abs(u_tilde[0]) > self._divergence_bound).any():
+        if u_tilde is None or not all(abs(v) <= b for v, b in zip(u_tilde[0].tolist(), self._divergence_bound)):   # NaN: fails
             self.fallbacks += 1
             solver.reset()
             return None

@@ -236,12 +236,12 @@ class EbRHRL:
               bounds: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, SolveInfo]:
         """Iterate from the current weights; returns u~ (N, n_u) (the last targets) and the info.
         ``bounds``: (lo, hi) (N, n_u) on u~ (module docstring), None for none."""
-        if problem.N != self.N or problem.n != self.n or problem.n_u != self.n_u:
+        if problem.B.shape != (self.N, self.n, self.n_u):
             raise ValueError(f"problem of shape N={problem.N}, n={problem.n}, n_u={problem.n_u} "
                              f"does not match the solver's {self.N}, {self.n}, {self.n_u}")
         if bounds is not None:
             bounds = (self._bound(bounds[0]), self._bound(bounds[1]))
-            if (bounds[0] > bounds[1]).any():
+            if np.greater(bounds[0], bounds[1]).any():
                 raise ValueError("input bounds with lo > hi")
         if self.loop is not None:
             return self._solve_compiled(problem, barrier, bounds)
