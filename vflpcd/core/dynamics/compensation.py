@@ -19,6 +19,7 @@ the result over and replays the samples that arrived meanwhile.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from typing import NamedTuple
 
@@ -103,6 +104,18 @@ class KoopmanCompensation:
         keep[np.flatnonzero(keep)[~ok]] = False
         return TrainingPairs(z[ok], d[ok], int((~keep).sum()), keep)
 
+    def residual_sample(self, U_k: np.ndarray, u_k: np.ndarray, U_next: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray] | None:
+        """``residual_target`` of one sample U_k (n_K,), u_k (n_u,), U_next (n_K,): (z (n_z,), d (n_y,)),
+        None when a number of it, or its residual d (overflow), is not finite."""
+        U_k, u_k, U_next = (np.asarray(x, dtype=float) for x in (U_k, u_k, U_next))
+        if not all(map(math.isfinite, U_k.tolist() + u_k.tolist() + U_next.tolist())):
+            return None
+        d = (U_next - self.nominal(U_k, u_k)) @ self.B_d_pinv.T          # (error_model)
+        if not all(map(math.isfinite, d.tolist())):
+            return None
+        return self.gp_input(U_k, u_k), d
+
     def predict(self, U: np.ndarray, u: np.ndarray, gp: FITCGP | None) -> np.ndarray:
         """Eq. (Dynamics_for_planning): A U + B u + B_d m(z). U (n_K,) or (N, n_K), u (n_u,)
         or (N, n_u) -> same leading shape as U. ``gp=None`` gives the nominal model."""
@@ -186,11 +199,11 @@ class OnlineCompensator:
         """One transition U_k (n_K,), u_k (n_u,), U_next (n_K,). Returns False (and counts it
         in ``dropped``) when non-finite; otherwise buffers it, offers z to the ALD dictionary
         and folds it into the current GP (O(n_y m^2))."""
-        pairs = self.comp.residual_target(U_k, u_k, U_next)
-        if pairs.z.shape[0] != 1:
-            self.dropped += pairs.dropped
+        pair = self.comp.residual_sample(U_k, u_k, U_next)
+        if pair is None:
+            self.dropped += 1
             return False
-        z, d = pairs.z[0], pairs.d[0]
+        z, d = pair
         self._seq += 1
         self._buffer.append((self._seq, z, d))
         self.dictionary.consider(z, tag=self._seq)

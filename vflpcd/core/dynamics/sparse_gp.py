@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,6 +66,16 @@ class SEHyper:
     @property
     def n_y(self) -> int:
         return self.sf2.shape[0]
+
+    @functools.cached_property
+    def inv_ell2(self) -> np.ndarray:
+        """1 / ell^2 (n_y,)."""
+        return 1.0 / self.ell**2
+
+    @functools.cached_property
+    def nh_inv_ell2(self) -> np.ndarray:
+        """-1 / (2 ell^2) (n_y, 1), the exponent's factor of the SE kernel."""
+        return (-0.5 / self.ell**2)[:, None]
 
     @classmethod
     def from_log(cls, theta: np.ndarray) -> "SEHyper":
@@ -228,10 +239,14 @@ class FITCGP:
     def __post_init__(self) -> None:
         for name in ("Zm", "Linv", "Ainv", "c", "alpha"):
             getattr(self, name).flags.writeable = False
-        # Prediction constants: alpha scaled by sf2 and -1/(2 ell^2), 1/ell^2 per output.
-        object.__setattr__(self, "_alpha_sf", self.hyp.sf2[:, None] * self.alpha)
-        object.__setattr__(self, "_inv_ell2", 1.0 / self.hyp.ell**2)
-        object.__setattr__(self, "_nh_inv_ell2", (-0.5 / self.hyp.ell**2)[:, None])
+        # Prediction constants: -1/(2 ell^2) and 1/ell^2 per output (the hyper-parameters'), alpha scaled by sf2.
+        object.__setattr__(self, "_inv_ell2", self.hyp.inv_ell2)
+        object.__setattr__(self, "_nh_inv_ell2", self.hyp.nh_inv_ell2)
+
+    @functools.cached_property
+    def _alpha_sf(self) -> np.ndarray:
+        """alpha scaled by sf2 (n_y, m), for the single-point mean and its Jacobian."""
+        return self.hyp.sf2[:, None] * self.alpha
 
     @property
     def m(self) -> int:
@@ -295,17 +310,17 @@ class FITCGP:
         y = np.asarray(y, dtype=float).reshape(-1)
         if z.shape != (self.n_z,) or y.shape != (self.n_y,):
             raise ValueError(f"expected z ({self.n_z},), y ({self.n_y},); got {z.shape}, {y.shape}")
-        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(y))):
+        if not all(map(math.isfinite, z.tolist() + y.tolist())):
             raise ValueError("non-finite sample")
-        d2 = np.einsum("ij,ij->i", self.Zm - z, self.Zm - z)
-        K = self.hyp.sf2[:, None] * np.exp(self._nh_inv_ell2 * d2)        # (n_y, m)
-        v = np.einsum("aij,aj->ai", self.Linv, K)                         # (n_y, m)
-        lam = np.maximum(self.hyp.sf2 - np.einsum("ai,ai->a", v, v), 0.0) + self.hyp.sn2
-        u = np.einsum("aij,aj->ai", self.Ainv, v)                         # A^-1 v
-        den = lam + np.einsum("ai,ai->a", v, u)
-        Ainv = self.Ainv - np.einsum("ai,aj->aij", u, u / den[:, None])
+        e = self.Zm - z
+        K = self.hyp.sf2[:, None] * np.exp(self._nh_inv_ell2 * np.einsum("ij,ij->i", e, e))   # (n_y, m)
+        v = np.matmul(self.Linv, K[:, :, None])[:, :, 0]                  # (n_y, m)
+        u = np.matmul(self.Ainv, v[:, :, None])                           # A^-1 v (n_y, m, 1)
+        vv, vu = (v[:, None, :] @ np.concatenate([v[:, :, None], u], axis=2))[:, 0].T
+        lam = np.maximum(self.hyp.sf2 - vv, 0.0) + self.hyp.sn2
+        Ainv = self.Ainv - u * (u / (lam + vu)[:, None, None]).transpose(0, 2, 1)
         c = self.c + v * (y / lam)[:, None]
-        alpha = np.einsum("aji,aj->ai", self.Linv, np.einsum("aij,aj->ai", Ainv, c))
+        alpha = np.matmul(self.Linv.transpose(0, 2, 1), np.matmul(Ainv, c[:, :, None]))[:, :, 0]
         return FITCGP(self.Zm, self.hyp, self.jitter, self.max_cond, self.n + 1,
                       self.Linv, Ainv, c, alpha)
 
