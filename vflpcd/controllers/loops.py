@@ -3,6 +3,7 @@
 Core stays pure (numpy and scipy only, no files): it writes a loop as plain Python
 (``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.control.scheduled_kernel.problem_loop``,
 ``vflpcd.core.control.tick_kernel``'s ``window_loop`` and ``linearisation_loop``,
+``vflpcd.core.dynamics.gp_kernel.add_sample_loop``,
 ``vflpcd.core.path_kernel.nearest_segment``,
 and the guidance's ``active_set_kernel.solve_loop``, ``integrate_kernel.step_loop`` and
 ``half_plane_kernel.half_planes_loop``) and takes the compiled function as an argument. This
@@ -50,6 +51,15 @@ def tick_loops():
         return None
     return TickLoops(window=window, linearisation=_compiled("tick_linearisation", linearisation_loop,
                                                            _warm_tick_linearisation))
+
+
+@lru_cache(maxsize=1)
+def gp_add_loop():
+    """``gp_kernel.add_sample_loop`` (the online GP's per-sample update) compiled and loaded
+    (``_warm_gp_add``), or None without numba."""
+    from vflpcd.core.dynamics.gp_kernel import add_sample_loop
+
+    return _compiled("gp_add", add_sample_loop, _warm_gp_add)
 
 
 @lru_cache(maxsize=1)
@@ -107,7 +117,7 @@ def compile_all() -> dict[str, bool]:
     that later processes load them from the cache in milliseconds instead of compiling for
     10-15 s of CPU (docs/results.md, "The test suite", for what compiling beside real-time runs did)."""
     return {fn.__name__: fn() is not None
-            for fn in (ebrhrl_loop, scheduled_problem_loop, tick_loops, path_loop, guidance_loops)}
+            for fn in (ebrhrl_loop, scheduled_problem_loop, tick_loops, gp_add_loop, path_loop, guidance_loops)}
 
 
 @lru_cache(maxsize=1)
@@ -177,6 +187,14 @@ def _warm_tick_linearisation(loop) -> None:
     import numpy as np
 
     loop(np.ones((2, 3)), np.eye(3), np.ones((3, 1)), np.ones((1, 1)), 1, -np.ones(1), np.ones(1))
+
+
+def _warm_gp_add(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``FITCGP.add_sample`` passes."""
+    import numpy as np
+
+    z = np.zeros
+    loop(z((1, 2)), np.ones(1), -np.ones((1, 1)), np.ones(1), z((1, 1, 1)), z((1, 1, 1)), z((1, 1)), z(2), z(1))
 
 
 def _warm_path(loop) -> None:

@@ -47,7 +47,7 @@ from vflpcd.core.control.horizon_reference import HorizonReference
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
 from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
-from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout, window_in_place
+from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.guidance.speed import heading_curvature
 from vflpcd.core.obstacles import ObstacleState
@@ -308,7 +308,6 @@ class VFLPC(ControllerBase):
             if self.rate is not None and params.R_rate_light is not None:
                 self._light_mode = mode(params.R_rate_light)
         self.solver, self.compensator = solver, compensator
-        self._lift_pair = model.lifter(2)       # _observe's: a transition's two states in the first one's frame
         self._cruise_mode = (self.rate, solver)
         self.plan_gate = None          # set by the safety guard (vflpcd.core.safety): refuses undrivable replans
         self.planning, self.jobs = self, self
@@ -710,8 +709,5 @@ class VFLPC(ControllerBase):
         if self.compensator is None or self._last is None:
             return
         prev, u = self._last
-        pair = np.empty((2, self.model.n_x))
-        pair[0], pair[1] = prev.origin, frame.origin
-        U_next = self._lift_pair(window_in_place(pair, self.errors.layout))[1]
-        self.compensator.observe(prev.U, u, U_next)
+        self.compensator.observe(prev.U, u, self.errors.lifted_next(prev.origin, frame.origin))
         self._since_refit += 1

@@ -113,26 +113,37 @@ class ErrorModel:
         self._A_N = np.broadcast_to(self.A, (self.N, self.n, self.n))
         self._B_N = np.broadcast_to(self.B, (self.N, self.n, model.n_u))
         self.layout = PoseLayout.of(model.state_names)
-        self._lift = model.lifter(self.N + 2)        # the robot and the N + 1 reference states of a tick
         self.tick_loops = tick_loops
+        self._lifts: dict[int, tuple] = {}            # window length -> (its lifter, its float32 buffer)
         self._position = np.array(self.layout.position, dtype=np.int64)
-        self._normalised = np.empty((self.N + 2, model.n_x), np.float32)
         self._no_G, self._no_g = np.zeros((self.N + 1, 0, self.n)), np.zeros((self.N + 1, 0))   # no half-planes (empty)
 
     def frame(self, state: np.ndarray, reference: np.ndarray) -> TickFrame:
         """Window frame of the world state (n_x,) and world reference (N + 1, n_x), lifted."""
-        window = np.empty((len(reference) + 1, self.model.n_x))
-        if self.tick_loops is not None and len(window) == self.N + 2:     # the same numbers, compiled
+        window, U = self._lifted_window(state, reference)
+        return TickFrame(np.asarray(state, float), U[0], U[1:], window[1:])
+
+    def lifted_next(self, origin: np.ndarray, state: np.ndarray) -> np.ndarray:
+        """Upsilon (n_K,) of the world state (n_x,) in the window frame of the world state ``origin``:
+        a transition's second state, for the GP."""
+        return self._lifted_window(origin, state[None, :])[1][1]
+
+    def _lifted_window(self, state: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The window [state; reference] (T, n_x) in the state's frame and its lift (T, n_K), by
+        ``tick_loops.window`` and a buffered lift per window length when compiled, else numpy."""
+        T = len(reference) + 1
+        window = np.empty((T, self.model.n_x))
+        lift = self._lifts.get(T)
+        if lift is None:
+            lift = self._lifts[T] = (self.model.lifter(T), np.empty((T, self.model.n_x), np.float32))
+        if self.tick_loops is not None:                  # the same numbers, compiled
             lay = self.layout
             self.tick_loops.window(state, reference, _KINDS[lay.kind], self._position, lay.heading or 0,
-                                   self.model.x_mean, self.model.x_std, window, self._normalised)
-            U = (self._lift.from_normalised(window, self._normalised) if isinstance(self._lift, BufferedLift)
-                 else self._lift(window))
-        else:
-            window[0], window[1:] = state, reference
-            U = self._lift(window_in_place(window, self.layout)) if len(window) == self.N + 2 else \
-                self.model.lift(window_in_place(window, self.layout))
-        return TickFrame(np.asarray(state, float), U[0], U[1:], window[1:])
+                                   self.model.x_mean, self.model.x_std, window, lift[1])
+            return window, (lift[0].from_normalised(window, lift[1]) if isinstance(lift[0], BufferedLift)
+                            else lift[0](window))
+        window[0], window[1:] = state, reference
+        return window, lift[0](window_in_place(window, self.layout))
 
     def problem(self, frame: TickFrame, u_prev: np.ndarray, gp: FITCGP | None = None) -> HorizonProblem:
         """The horizon problem of the module docstring."""

@@ -166,7 +166,8 @@ class OnlineCompensator:
     comp: the compensation structure; hyp0: initial hyper-parameters (n_y outputs);
     nu, m_max: ALD threshold and dictionary cap (= number of inducing points); n_max: training
     buffer length; ald_ell: ALD kernel length scale (default min(hyp0.ell); ALD uses sf2 = 1,
-    so nu is relative). Refit options (optimise, bounds, jitter, max_cond) go to ``refit``.
+    so nu is relative). Refit options (optimise, bounds, jitter, max_cond) go to ``refit``;
+    ``add_loop``: ``gp_kernel.add_sample_loop`` compiled, for the per-sample update (None: numpy).
     Every call comes from the owner's thread; a refit runs elsewhere (a worker) on the snapshot
     that ``refit_job`` takes, and ``install`` replays into its model the samples observed meanwhile.
     """
@@ -174,7 +175,7 @@ class OnlineCompensator:
     def __init__(self, comp: KoopmanCompensation, hyp0: SEHyper, *, nu: float = 1e-2,
                  m_max: int = 64, n_max: int = 300, ald_ell: float | None = None,
                  optimise: bool = True, bounds=DEFAULT_BOUNDS, jitter: float = 1e-8,
-                 max_cond: float = 1e12) -> None:
+                 max_cond: float = 1e12, add_loop=None) -> None:
         if hyp0.n_y != comp.n_y:
             raise ValueError(f"hyp0 has {hyp0.n_y} outputs, B_d has {comp.n_y}")
         self.comp, self.hyp0 = comp, hyp0
@@ -185,6 +186,7 @@ class OnlineCompensator:
         self._model: FITCGP | None = None
         self._refit_kw = dict(optimise=optimise, bounds=bounds, jitter=jitter, max_cond=max_cond)
         self.dropped = 0          # non-finite samples never fed to the GP
+        self._add_loop = add_loop  # gp_kernel.add_sample_loop compiled (FITCGP.add_sample's loop), None: numpy
 
     @property
     def model(self) -> FITCGP | None:
@@ -208,7 +210,7 @@ class OnlineCompensator:
         self._buffer.append((self._seq, z, d))
         self.dictionary.consider(z, tag=self._seq)
         if self._model is not None:
-            self._model = self._model.add_sample(z, d)
+            self._model = self._model.add_sample(z, d, self._add_loop)
         return True
 
     def refit(self) -> FITCGP | None:
@@ -235,6 +237,6 @@ class OnlineCompensator:
         if new is not job.prev and new is not None:
             for seq, z, d in self._buffer:           # samples that arrived meanwhile
                 if seq > job.seq0:
-                    new = new.add_sample(z, d)
+                    new = new.add_sample(z, d, self._add_loop)
             self._model = new
         return self._model

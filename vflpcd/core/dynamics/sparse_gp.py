@@ -299,12 +299,13 @@ class FITCGP:
             raise GPConditioningError("non_finite_posterior")
         return gp
 
-    def add_sample(self, z: np.ndarray, y: np.ndarray) -> "FITCGP":
+    def add_sample(self, z: np.ndarray, y: np.ndarray, loop=None) -> "FITCGP":
         """Fold one sample z (n_z,), y (n_y,) into the posterior in O(n_y m^2) and return the
         new model (inducing inputs and hyper-parameters unchanged).
 
         With v = L^-1 k_m(z), lambda = k(z,z) - v.v + sn2: A <- A + v v^T / lambda
         (Sherman-Morrison on A^-1), c <- c + v y / lambda. Raises ValueError on non-finite input.
+        ``loop``: ``gp_kernel.add_sample_loop`` compiled (the same numbers), None for numpy.
         """
         z = np.asarray(z, dtype=float).reshape(-1)
         y = np.asarray(y, dtype=float).reshape(-1)
@@ -312,6 +313,10 @@ class FITCGP:
             raise ValueError(f"expected z ({self.n_z},), y ({self.n_y},); got {z.shape}, {y.shape}")
         if not all(map(math.isfinite, z.tolist() + y.tolist())):
             raise ValueError("non-finite sample")
+        if loop is not None:
+            Ainv, c, alpha = loop(self.Zm, self.hyp.sf2, self._nh_inv_ell2, self.hyp.sn2, self.Linv, self.Ainv,
+                                  self.c, z, y)
+            return FITCGP(self.Zm, self.hyp, self.jitter, self.max_cond, self.n + 1, self.Linv, Ainv, c, alpha)
         e = self.Zm - z
         K = self.hyp.sf2[:, None] * np.exp(self._nh_inv_ell2 * np.einsum("ij,ij->i", e, e))   # (n_y, m)
         v = np.matmul(self.Linv, K[:, :, None])[:, :, 0]                  # (n_y, m)
@@ -334,7 +339,8 @@ class FITCGP:
 
     # ---------------------------------------------------------------- prediction
     def _kernel_rows(self, Zs: np.ndarray) -> np.ndarray:
-        D2 = cdist(np.atleast_2d(np.asarray(Zs, dtype=float)), self.Zm, "sqeuclidean")   # (N, m)
+        e = np.atleast_2d(np.asarray(Zs, dtype=float))[:, None, :] - self.Zm[None]     # cdist's, without its cost per call
+        D2 = np.einsum("nmi,nmi->nm", e, e)                                             # (N, m)
         return self.hyp.sf2[:, None, None] * np.exp(self._nh_inv_ell2[:, :, None] * D2)  # (n_y, N, m)
 
     def means(self, Zs: np.ndarray) -> np.ndarray:
