@@ -52,6 +52,25 @@ def test_the_loop_is_loaded_before_the_first_tick_for_the_types_the_solver_passe
     assert len(loop.signatures) == 1
 
 
+def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
+    """A run of VF-LPC with the online GP (its samples folded in through the compiled update, its
+    window and linearisation compiled) adds no signature to the warmed loops: none compiles in a tick."""
+    import dataclasses
+
+    from sim.runner import run_closed_loop
+    from vflpcd.config.scenarios import load_scenario
+    from vflpcd.controllers import make_controller
+
+    gp, tick = loops.gp_add_loop(), loops.tick_loops()
+    before = (len(gp.signatures), len(tick.window.signatures), len(tick.linearisation.signatures))
+    assert before == (1, 1, 1)
+    scenario = dataclasses.replace(load_scenario("racing_track"), t_max=6.0)
+    ctrl = make_controller("vflpc_ml", scenario)
+    run_closed_loop(scenario, ctrl, 0)
+    assert ctrl.compensator.model is not None and ctrl.compensator.model.n > 10    # samples were folded in
+    assert (len(gp.signatures), len(tick.window.signatures), len(tick.linearisation.signatures)) == before
+
+
 def test_the_path_loop_is_compiled_once_and_warmed_for_the_types_the_path_passes():
     import numpy as np
 

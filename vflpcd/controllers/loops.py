@@ -190,11 +190,16 @@ def _warm_tick_linearisation(loop) -> None:
 
 
 def _warm_gp_add(loop) -> None:
-    """Compile (or load) the loop now, for the argument types ``FITCGP.add_sample`` passes."""
+    """Compile (or load) the loop now, through ``FITCGP.add_sample`` itself: its arrays are read-only,
+    a type of their own to numba (a loop warmed on writable ones compiled again at the first sample,
+    and the daemon's loop stalled 0.5 s)."""
     import numpy as np
 
-    z = np.zeros
-    loop(z((1, 2)), np.ones(1), -np.ones((1, 1)), np.ones(1), z((1, 1, 1)), z((1, 1, 1)), z((1, 1)), z(2), z(1))
+    from vflpcd.core.dynamics.sparse_gp import FITCGP, SEHyper
+
+    one = np.ones(1)
+    gp = FITCGP.fit(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 1)), SEHyper(one, one, one))
+    gp.add_sample(np.zeros(2), np.zeros(1), loop)
 
 
 def _warm_path(loop) -> None:
