@@ -56,6 +56,9 @@ def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
     """A run of VF-LPC with the online GP (its samples folded in through the compiled update, its
     window and linearisation compiled) adds no signature to the warmed loops: none compiles in a tick."""
     import dataclasses
+    import pickle
+
+    import numpy as np
 
     from sim.runner import run_closed_loop
     from vflpcd.config.scenarios import load_scenario
@@ -67,7 +70,10 @@ def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
     scenario = dataclasses.replace(load_scenario("racing_track"), t_max=6.0)
     ctrl = make_controller("vflpc_ml", scenario)
     run_closed_loop(scenario, ctrl, 0)
-    assert ctrl.compensator.model is not None and ctrl.compensator.model.n > 10    # samples were folded in
+    model = ctrl.compensator.model
+    assert model is not None and model.n > 10                  # samples were folded in
+    back = pickle.loads(pickle.dumps(model))                    # a refit comes back from a worker process
+    back.add_sample(np.zeros(back.n_z), np.zeros(back.n_y), gp)
     assert (len(gp.signatures), len(tick.window.signatures), len(tick.linearisation.signatures)) == before
 
 

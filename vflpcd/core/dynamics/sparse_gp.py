@@ -67,6 +67,10 @@ class SEHyper:
     def n_y(self) -> int:
         return self.sf2.shape[0]
 
+    def __reduce__(self):
+        """Unpickled through the constructor, so its arrays are read-only again (``FITCGP.__reduce__``)."""
+        return SEHyper, (self.sf2, self.ell, self.sn2)
+
     @functools.cached_property
     def inv_ell2(self) -> np.ndarray:
         """1 / ell^2 (n_y,)."""
@@ -242,6 +246,12 @@ class FITCGP:
         # Prediction constants: -1/(2 ell^2) and 1/ell^2 per output (the hyper-parameters'), alpha scaled by sf2.
         object.__setattr__(self, "_inv_ell2", self.hyp.inv_ell2)
         object.__setattr__(self, "_nh_inv_ell2", self.hyp.nh_inv_ell2)
+
+    def __reduce__(self):
+        """Unpickled (a refit comes back from a worker process) through the constructor, so its
+        arrays are read-only again, the type the compiled update was warmed for (``loops``)."""
+        return FITCGP, (self.Zm, self.hyp, self.jitter, self.max_cond, self.n, self.Linv, self.Ainv, self.c,
+                        self.alpha)
 
     @functools.cached_property
     def _alpha_sf(self) -> np.ndarray:
