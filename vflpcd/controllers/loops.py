@@ -36,6 +36,7 @@ def scheduled_problem_loop():
     and loaded (``_warm_scheduled``), or None without numba."""
     from vflpcd.core.control.scheduled_kernel import problem_loop
 
+    _algebra()
     return _compiled("scheduled_problem", problem_loop, _warm_scheduled)
 
 
@@ -46,6 +47,7 @@ def tick_loops():
     from vflpcd.core.control.error_model import TickLoops
     from vflpcd.core.control.tick_kernel import linearisation_loop, window_loop
 
+    _algebra()
     window = _compiled("tick_window", window_loop, _warm_tick_window)
     if window is None:
         return None
@@ -59,6 +61,7 @@ def gp_add_loop():
     (``_warm_gp_add``), or None without numba."""
     from vflpcd.core.dynamics.gp_kernel import add_sample_loop
 
+    _algebra()
     return _compiled("gp_add", add_sample_loop, _warm_gp_add)
 
 
@@ -118,6 +121,20 @@ def compile_all() -> dict[str, bool]:
     10-15 s of CPU (docs/results.md, "The test suite", for what compiling beside real-time runs did)."""
     return {fn.__name__: fn() is not None
             for fn in (ebrhrl_loop, scheduled_problem_loop, tick_loops, gp_add_loop, path_loop, guidance_loops)}
+
+
+@lru_cache(maxsize=1)
+def _algebra() -> bool:
+    """Register ``loop_algebra``'s functions, which the tick's, the GP's and the scheduled model's
+    loops call, with numba; False without numba."""
+    try:
+        from numba.extending import register_jitable
+    except ImportError:
+        return False
+    from vflpcd.core.loop_algebra import matvec
+
+    register_jitable(matvec)
+    return True
 
 
 @lru_cache(maxsize=1)

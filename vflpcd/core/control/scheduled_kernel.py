@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vflpcd.core.loop_algebra import matvec
+
 
 def problem_loop(U_r, A, B, B_s, j, n_x, u_min, u_max):
     N, n_K, n_u = U_r.shape[0] - 1, A.shape[0], B.shape[1]
@@ -30,11 +32,8 @@ def problem_loop(U_r, A, B, B_s, j, n_x, u_min, u_max):
     r = np.empty(n_u)
     for k in range(N):
         s = U_r[k, j]
+        matvec(A, U_r[k], nxt[k])
         for i in range(n_K):
-            acc = 0.0
-            for col in range(n_K):
-                acc += A[i, col] * U_r[k, col]
-            nxt[k, i] = acc
             for a in range(n_u):
                 Bt[i, a] = B[i, a] + s * B_s[i, a]
         for a in range(n_u):                       # normal equations on the physical rows

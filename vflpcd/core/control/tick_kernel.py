@@ -20,6 +20,8 @@ import math
 
 import numpy as np
 
+from vflpcd.core.loop_algebra import matvec
+
 KIND_NONE, KIND_POSITION, KIND_PLANAR = 0, 1, 2
 
 
@@ -71,11 +73,7 @@ def linearisation_loop(U_r, A, B, B_x_pinv, n_x, u_min, u_max):
     u_r = np.empty((N, n_u))
     nxt = np.empty((N, n_K))
     for k in range(N):
-        for i in range(n_K):
-            acc = 0.0
-            for col in range(n_K):
-                acc += U_r[k, col] * A[i, col]
-            nxt[k, i] = acc
+        matvec(A, U_r[k], nxt[k])
         for a in range(n_u):
             acc = 0.0
             for i in range(n_x):

@@ -19,6 +19,8 @@ import math
 
 import numpy as np
 
+from vflpcd.core.loop_algebra import matvec
+
 
 def add_sample_loop(Zm, sf2, nh_inv_ell2, sn2, Linv, Ainv, c, z, y):
     n_y, m, n_z = Linv.shape[0], Zm.shape[0], Zm.shape[1]
@@ -39,34 +41,18 @@ def add_sample_loop(Zm, sf2, nh_inv_ell2, sn2, Linv, Ainv, c, z, y):
     for a in range(n_y):
         for j in range(m):
             k[j] = sf2[a] * math.exp(nh_inv_ell2[a, 0] * d2[j])
-        vv = 0.0
+        matvec(Linv[a], k, v)
+        matvec(Ainv[a], v, w)
+        vv, vw = 0.0, 0.0
         for i in range(m):
-            acc = 0.0
-            for j in range(m):
-                acc += Linv[a, i, j] * k[j]
-            v[i] = acc
-            vv += acc * acc
-        vw = 0.0
-        for i in range(m):
-            acc = 0.0
-            for j in range(m):
-                acc += Ainv[a, i, j] * v[j]
-            w[i] = acc
-            vw += v[i] * acc
+            vv += v[i] * v[i]
+            vw += v[i] * w[i]
         lam = max(sf2[a] - vv, 0.0) + sn2[a]
         den = lam + vw
         for i in range(m):
             for j in range(m):
                 Ainv_new[a, i, j] = Ainv[a, i, j] - w[i] * (w[j] / den)
             c_new[a, i] = c[a, i] + v[i] * (y[a] / lam)
-        for i in range(m):
-            acc = 0.0
-            for j in range(m):
-                acc += Ainv_new[a, i, j] * c_new[a, j]
-            t[i] = acc
-        for i in range(m):
-            acc = 0.0
-            for j in range(m):
-                acc += Linv[a, j, i] * t[j]
-            alpha[a, i] = acc
+        matvec(Ainv_new[a], c_new[a], t)
+        matvec(Linv[a].T, t, alpha[a])
     return Ainv_new, c_new, alpha
