@@ -36,7 +36,6 @@ import scipy.linalg as sl
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.tick_kernel import KIND_NONE, KIND_PLANAR, KIND_POSITION
 from vflpcd.core.dynamics.compensation import KoopmanCompensation
-from vflpcd.core.dynamics.koopman import BufferedLift
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout, window_in_place
 from vflpcd.core.dynamics.sparse_gp import FITCGP
 
@@ -140,8 +139,7 @@ class ErrorModel:
             lay = self.layout
             self.tick_loops.window(state, reference, _KINDS[lay.kind], self._position, lay.heading or 0,
                                    self.model.x_mean, self.model.x_std, window, lift[1])
-            return window, (lift[0].from_normalised(window, lift[1]) if isinstance(lift[0], BufferedLift)
-                            else lift[0](window))
+            return window, lift[0].from_normalised(window, lift[1])
         window[0], window[1:] = state, reference
         return window, lift[0](window_in_place(window, self.layout))
 

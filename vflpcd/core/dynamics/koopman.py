@@ -30,7 +30,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from vflpcd.core.dynamics.lifted import LiftedLinearModel
+from vflpcd.core.dynamics.lifted import LiftedLinearModel, Lifter
 
 ACTIVATION = "tanh"
 
@@ -103,11 +103,12 @@ class KoopmanModel(LiftedLinearModel):
         return BufferedLift(self, rows)
 
 
-class BufferedLift:
+class BufferedLift(Lifter):
     """``KoopmanModel.lift`` of ``rows`` states (rows, n_x) at a time, the same operations written
     into arrays allocated once (the same numbers); each call returns a new (rows, n_K) array."""
 
     def __init__(self, model: KoopmanModel, rows: int) -> None:
+        super().__init__(model)
         self.n_x, self.n_K = model.n_x, model.n_K
         self._mean, self._std = model.x_mean, model.x_std
         self._w, self._b = model._w32, model._b32

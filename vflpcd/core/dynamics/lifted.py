@@ -53,7 +53,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -294,10 +294,10 @@ class LiftedLinearModel(ABC):
         out[..., self.n_x:] = self.rho(x)
         return out
 
-    def lifter(self, rows: int) -> Callable[[np.ndarray], np.ndarray]:
-        """A lift of ``rows`` states (rows, n_x) at a time into a new (rows, n_K) array, for a caller
-        that lifts that many at every tick (a model may keep its intermediate arrays); ``lift`` here."""
-        return self.lift
+    def lifter(self, rows: int) -> "Lifter":
+        """A ``Lifter`` of ``rows`` states (rows, n_x) at a time, for a caller that lifts that many
+        at every tick (a model may keep its intermediate arrays); ``lift`` itself here."""
+        return Lifter(self)
 
     # ------------------------------------------------------------------ prediction
     def rollout(self, x0: np.ndarray, controls: np.ndarray) -> np.ndarray:
@@ -339,6 +339,22 @@ class LiftedLinearModel(ABC):
         """The step's Jacobians at (U (..., n_K), u (..., n_u)): A + (B_s u) e_s' (..., n_K, n_K) and
         B + s B_s (..., n_K, n_u)."""
         return scheduled_jacobians(self.A, self.B, self.B_s, self.schedule_index, U, u)
+
+
+class Lifter:
+    """``LiftedLinearModel.lift`` of a fixed number of states at a time (``LiftedLinearModel.lifter``):
+    called on states x (rows, n_x), or through ``from_normalised`` with their normalised copy
+    (x - x_mean) / x_std in float32 at hand (a model whose lift does not start from it ignores it);
+    each returns a new (rows, n_K) array."""
+
+    def __init__(self, model: "LiftedLinearModel") -> None:
+        self._lift = model.lift
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self._lift(x)
+
+    def from_normalised(self, x: np.ndarray, normalised: np.ndarray) -> np.ndarray:
+        return self._lift(x)
 
 
 def scheduled_step(A: np.ndarray, B: np.ndarray, B_s: np.ndarray, schedule: int | None, U: np.ndarray,

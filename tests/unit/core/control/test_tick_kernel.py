@@ -8,15 +8,35 @@ import pytest
 from vflpcd.config.koopman_file import load_koopman
 from vflpcd.core.control.error_model import ErrorModel, Limits, TickLoops
 from vflpcd.core.control.tick_kernel import linearisation_loop, window_loop
+from vflpcd.core.dynamics.lifted import LiftedLinearModel
 from vflpcd.base.paths import config_dir
 
 N = 20
 
 
+class Plain(LiftedLinearModel):
+    """Upsilon = [x, sin(x), 1]: a lift that does not start from the normalised state (the generic
+    ``Lifter``)."""
+
+    def rho(self, x):
+        x = np.asarray(x, float)
+        return np.concatenate([np.sin(x), np.ones(x.shape[:-1] + (1,))], axis=-1)
+
+
+def _plain():
+    rng = np.random.default_rng(2)
+    A = np.eye(13) + 0.02 * rng.normal(size=(13, 13))
+    A[-1] = np.eye(13)[-1]
+    B = 0.05 * rng.normal(size=(13, 2))
+    B[-1] = 0.0
+    return Plain(A, B, state_names=("X", "Y", "psi", "vx", "vy", "omega"), control_names=("a_x", "delta_f"),
+                 dt=0.05, x_mean=np.zeros(6), x_std=np.ones(6), u_mean=np.zeros(2), u_std=np.ones(2))
+
+
 def _models():
     car = load_koopman(config_dir() / "models" / "dynamic_bicycle.npz")
     quad = load_koopman(config_dir() / "models" / "quadrotor.npz")
-    return {"car": car, "quad": quad}
+    return {"car": car, "quad": quad, "plain": _plain()}
 
 
 def _error_model(model, loops):
@@ -46,7 +66,7 @@ def compiled():
     return loops
 
 
-@pytest.mark.parametrize("name", ["car", "quad"])
+@pytest.mark.parametrize("name", ["car", "quad", "plain"])
 @pytest.mark.parametrize("wrap", [False, True])
 @pytest.mark.parametrize("run", ["compiled", "as python"])
 def test_the_loops_give_the_numpy_paths_frame_and_problem(compiled, name, wrap, run):
