@@ -179,13 +179,16 @@ def body_half_planes(x: np.ndarray, times: np.ndarray, body: Body, keepouts: Seq
             continue
         xi, si = x[idx], slack[idx]
         sds, gs = k.distance_and_normal(_disc_centres(xi, t[idx], body), np.tile(times[idx], len(body.offsets)))
-        for sd, g in zip(sds.reshape(-1, idx.size), gs.reshape(-1, idx.size, x.shape[1])):
-            want = body.radius + k.clearance - si - sd
-            near = (want > -REACH) & (want > need[idx])
-            rows = idx[near]
-            need[rows] = want[near]
-            n[rows] = g[near]
-            b[rows] = np.einsum("ij,ij->i", g[near], xi[near]) + want[near]
+        want = body.radius + k.clearance - si - sds.reshape(-1, idx.size)     # (J, K') per disc
+        disc = np.argmax(want, axis=0)          # the most binding disc (the first of equals: as disc by disc)
+        cols = np.arange(idx.size)
+        want = want[disc, cols]
+        near = (want > -REACH) & (want > need[idx])
+        rows = idx[near]
+        g = gs.reshape(-1, idx.size, x.shape[1])[disc[near], cols[near]]
+        need[rows] = want[near]
+        n[rows] = g
+        b[rows] = np.einsum("ij,ij->i", g, xi[near]) + want[near]
     return n, b
 
 
