@@ -200,8 +200,7 @@ class EbRHRL:
         x[0] = problem.x0
         for k in range(N):
             xk = x[k]
-            pk = np.exp(f._a + f._b @ xk - f._h @ (xk * xk))
-            phi[k] = pk
+            phi[k] = pk = f(xk)
             Kx = self.K[k] @ xk
             u[k] = np.minimum(np.maximum(pk @ self.W_a[k] - Kx, lo[k]), hi[k])
             x[k + 1] = A_cl[k] @ xk + problem.B[k] @ (u[k] + Kx) + problem.c[k]

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vflpcd.core.dynamics.sparse_gp import sq_distances
 
 
 class ALDDictionary:
@@ -55,8 +56,7 @@ class ALDDictionary:
         return self._tags.copy()
 
     def _k(self, z: np.ndarray) -> np.ndarray:
-        e = self._D - z                   # se_kernel against one point, without cdist's cost per call
-        return self.sf2 * np.exp(-0.5 / self.ell ** 2 * np.einsum("ij,ij->i", e, e))
+        return self.sf2 * np.exp(-0.5 / self.ell ** 2 * sq_distances(self._D, z)[:, 0])
 
     def delta(self, z: np.ndarray) -> float:
         """ALD value of z (n_z,) against the current dictionary (k(z,z) when empty)."""

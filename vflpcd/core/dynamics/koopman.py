@@ -38,13 +38,24 @@ ACTIVATION = "tanh"
 def encoder_forward(x_n: np.ndarray, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray]) -> np.ndarray:
     """The MLP encoder rho_e: x_n (..., n_x) -> (..., n_e) float64; tanh on every layer but the last,
     evaluated in the precision of the weights (``KoopmanModel`` passes float32 copies)."""
-    h = np.asarray(x_n, dtype=weights[0].dtype)
+    return encoder_layers(np.asarray(x_n, dtype=weights[0].dtype), weights, biases).astype(np.float64)
+
+
+def encoder_layers(h: np.ndarray, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray],
+                   buffers: Sequence[np.ndarray] | None = None) -> np.ndarray:
+    """``encoder_forward``'s layers on h (..., n_x) in the weights' precision, the last layer's
+    output returned in it; with ``buffers`` (one array per layer, of its output's shape) each layer
+    is written into its buffer (the same numbers, nothing allocated)."""
     last = len(weights) - 1
     for i, (W, b) in enumerate(zip(weights, biases)):
-        h = h @ W + b
+        if buffers is None:
+            h = h @ W + b
+        else:
+            h = np.matmul(h, W, out=buffers[i])
+            h += b
         if i < last:
             np.tanh(h, out=h)
-    return h.astype(np.float64)
+    return h
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:
@@ -124,15 +135,7 @@ class BufferedLift(Lifter):
 
     def from_normalised(self, x: np.ndarray, normalised: np.ndarray) -> np.ndarray:
         """The lift of states x (rows, n_x) whose normalised states (float32) are at hand."""
-        h = normalised
-        last = len(self._w) - 1
-        for i, (W, b) in enumerate(zip(self._w, self._b)):
-            out = self._h[i + 1]
-            np.matmul(h, W, out=out)
-            out += b
-            if i < last:
-                np.tanh(out, out=out)
-            h = out
+        h = encoder_layers(normalised, self._w, self._b, self._h[1:])
         U = np.empty((len(x), self.n_K))
         U[:, : self.n_x] = x
         U[:, self.n_x:-1] = h

@@ -50,7 +50,6 @@ gives back w (with the heading unwrapped along the window).
 
 from __future__ import annotations
 
-import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Sequence
@@ -106,8 +105,6 @@ def window_in_place(w: np.ndarray, lay: PoseLayout) -> np.ndarray:
         w[..., p] = w[..., p] - w[..., :1, p]
         return w
     i, j = lay.position
-    if w.ndim == 2:                 # one window (a tick's): its first pose in floats
-        return _one_planar_window(w, i, j, lay.heading)
     dx, dy = w[..., i] - w[..., :1, i], w[..., j] - w[..., :1, j]
     psi = unwrap_angles(w[..., lay.heading])
     psi0 = psi[..., :1]
@@ -115,26 +112,6 @@ def window_in_place(w: np.ndarray, lay: PoseLayout) -> np.ndarray:
     w[..., i] = c * dx + s * dy
     w[..., j] = -s * dx + c * dy
     w[..., lay.heading] = psi - psi0
-    return w
-
-
-def _one_planar_window(w: np.ndarray, i: int, j: int, h: int) -> np.ndarray:
-    """``window_in_place`` of one planar window w (T, n_x) (position columns i, j, heading h)."""
-    psi = w[:, h]
-    if not float(psi.max()) - float(psi.min()) < np.pi and not (np.abs(psi[1:] - psi[:-1]) < np.pi).all():
-        psi[:] = np.unwrap(psi)
-    psi0 = float(psi[0])
-    c, s = math.cos(psi0), math.sin(psi0)
-    if j == i + 1:                  # [dx, dy] [[c, -s], [s, c]] in one product
-        p = w[:, i:j + 1]
-        p -= p[0].copy()
-        p[:] = p @ np.array([[c, -s], [s, c]])
-    else:
-        x0, y0 = float(w[0, i]), float(w[0, j])
-        dx, dy = w[:, i] - x0, w[:, j] - y0
-        w[:, i] = c * dx + s * dy
-        w[:, j] = c * dy - s * dx
-    psi -= psi0
     return w
 
 

@@ -289,13 +289,12 @@ class PlannerBase:
     def _reaches(o: ObstacleImplicit, xy: np.ndarray, t: np.ndarray, level: float) -> bool:
         """Whether varphi <= level (< 0: inside the reactive region) at some point of xy (K, d)
         reached at times t (K,). Only the points within o's reach of its centre are evaluated:
-        outside it varphi > 0 (``ObstacleImplicit.reach``)."""
-        pts = _at_stamp(o, xy, t) if np.any(o.velocity) else xy
-        d = pts - o.center
-        near = np.einsum("ij,ij->i", d, d) < o.reach ** 2
+        outside it varphi > 0 (``_within_reach``)."""
+        t = np.broadcast_to(np.asarray(t, float), (len(xy),))
+        near = _within_reach(o, xy, t)
         if not near.any():
             return False
-        return bool(np.any(o.value(pts[near], o.stamp) <= level))
+        return bool(np.any(o.value(_at_stamp(o, xy[near], t[near]), o.stamp) <= level))
 
     def splice(self, plan: GuidancePlan, robot: np.ndarray, v_robot: float, t_now: float) -> GuidancePlan | None:
         """A late replan re-timed as if planned now from the robot (``robot`` (d,) at ``t_now`` at
