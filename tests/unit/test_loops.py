@@ -53,8 +53,9 @@ def test_the_loop_is_loaded_before_the_first_tick_for_the_types_the_solver_passe
 
 
 def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
-    """A run of VF-LPC with the online GP (its samples folded in through the compiled update, its
-    window and linearisation compiled) adds no signature to the warmed loops: none compiles in a tick."""
+    """A run of VF-LPC with the online GP (its samples tested and folded in, its window, linearisation
+    and GP correction compiled), and a refit's model coming back from a worker, add no signature to
+    the warmed loops: none compiles in a tick."""
     import dataclasses
     import pickle
 
@@ -64,9 +65,10 @@ def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
     from vflpcd.config.scenarios import load_scenario
     from vflpcd.controllers import make_controller
 
-    gp, tick = loops.gp_add_loop(), loops.tick_loops()
-    before = (len(gp.signatures), len(tick.window.signatures), len(tick.linearisation.signatures))
-    assert before == (1, 1, 1)
+    gp, tick, ald = loops.gp_add_loop(), loops.tick_loops(), loops.ald_loop()
+    compiled = (gp, tick.window, tick.linearisation, tick.correction, ald)
+    before = tuple(len(loop.signatures) for loop in compiled)
+    assert before == (1, 1, 1, 1, 1)
     scenario = dataclasses.replace(load_scenario("racing_track"), t_max=6.0)
     ctrl = make_controller("vflpc_ml", scenario)
     run_closed_loop(scenario, ctrl, 0)
@@ -74,7 +76,9 @@ def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
     assert model is not None and model.n > 10                  # samples were folded in
     back = pickle.loads(pickle.dumps(model))                    # a refit comes back from a worker process
     back.add_sample(np.zeros(back.n_z), np.zeros(back.n_y), gp)
-    assert (len(gp.signatures), len(tick.window.signatures), len(tick.linearisation.signatures)) == before
+    U = np.zeros((ctrl.N + 1, ctrl.model.n_K))
+    ctrl.errors.comp.corrected_next(U[1:], U[:-1], np.zeros((ctrl.N, ctrl.model.n_u)), back, tick.correction)
+    assert tuple(len(loop.signatures) for loop in compiled) == before
 
 
 def test_the_path_loop_is_compiled_once_and_warmed_for_the_types_the_path_passes():
@@ -130,7 +134,8 @@ def test_vflpcd_compile_compiles_every_loop_and_says_so(capsys):
     assert main(["compile"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines == [f"{name}: compiled" for name in
-                     ("ebrhrl_loop", "scheduled_problem_loop", "tick_loops", "gp_add_loop", "path_loop", "guidance_loops")]
+                     ("ebrhrl_loop", "scheduled_problem_loop", "tick_loops", "gp_add_loop", "ald_loop", "path_loop",
+                      "guidance_loops")]
     assert all(hasattr(fn(), "signatures") for fn in (loops.ebrhrl_loop, loops.scheduled_problem_loop, loops.path_loop))
     assert loops.guidance_loops().active_set is loops.active_set_loop()
 

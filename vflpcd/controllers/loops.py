@@ -3,7 +3,7 @@
 Core stays pure (numpy and scipy only, no files): it writes a loop as plain Python
 (``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.control.scheduled_kernel.problem_loop``,
 ``vflpcd.core.control.tick_kernel``'s ``window_loop`` and ``linearisation_loop``,
-``vflpcd.core.dynamics.gp_kernel.add_sample_loop``,
+``vflpcd.core.dynamics.gp_kernel``'s ``add_sample_loop``, ``corrected_next_loop`` and ``ald_delta_loop``,
 ``vflpcd.core.path_kernel.nearest_segment``,
 and the guidance's ``active_set_kernel.solve_loop``, ``integrate_kernel.step_loop`` and
 ``half_plane_kernel.half_planes_loop``) and takes the compiled function as an argument. This
@@ -42,17 +42,20 @@ def scheduled_problem_loop():
 
 @lru_cache(maxsize=1)
 def tick_loops():
-    """``tick_kernel``'s loops (the tick's window and nominal linearisation) compiled and loaded
-    (``_warm_tick``), as ``error_model.TickLoops``, or None without numba."""
+    """The tick's loops (``tick_kernel``'s window and nominal linearisation, ``gp_kernel``'s correction
+    by the GP's mean) compiled and loaded (``_warm_tick_*``), as ``error_model.TickLoops``, or None
+    without numba."""
     from vflpcd.core.control.error_model import TickLoops
     from vflpcd.core.control.tick_kernel import linearisation_loop, window_loop
+    from vflpcd.core.dynamics.gp_kernel import corrected_next_loop
 
     _algebra()
     window = _compiled("tick_window", window_loop, _warm_tick_window)
     if window is None:
         return None
-    return TickLoops(window=window, linearisation=_compiled("tick_linearisation", linearisation_loop,
-                                                           _warm_tick_linearisation))
+    return TickLoops(window=window,
+                     linearisation=_compiled("tick_linearisation", linearisation_loop, _warm_tick_linearisation),
+                     correction=_compiled("tick_gp_correction", corrected_next_loop, _warm_tick_correction))
 
 
 @lru_cache(maxsize=1)
@@ -63,6 +66,15 @@ def gp_add_loop():
 
     _algebra()
     return _compiled("gp_add", add_sample_loop, _warm_gp_add)
+
+
+@lru_cache(maxsize=1)
+def ald_loop():
+    """``gp_kernel.ald_delta_loop`` (the online GP dictionary's test of a sample) compiled and loaded
+    (``_warm_ald``), or None without numba."""
+    from vflpcd.core.dynamics.gp_kernel import ald_delta_loop
+
+    return _compiled("gp_ald", ald_delta_loop, _warm_ald)
 
 
 @lru_cache(maxsize=1)
@@ -120,7 +132,8 @@ def compile_all() -> dict[str, bool]:
     that later processes load them from the cache in milliseconds instead of compiling for
     10-15 s of CPU (docs/results.md, "The test suite", for what compiling beside real-time runs did)."""
     return {fn.__name__: fn() is not None
-            for fn in (ebrhrl_loop, scheduled_problem_loop, tick_loops, gp_add_loop, path_loop, guidance_loops)}
+            for fn in (ebrhrl_loop, scheduled_problem_loop, tick_loops, gp_add_loop, ald_loop, path_loop,
+                       guidance_loops)}
 
 
 @lru_cache(maxsize=1)
@@ -217,6 +230,32 @@ def _warm_gp_add(loop) -> None:
     one = np.ones(1)
     gp = FITCGP.fit(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 1)), SEHyper(one, one, one))
     gp.add_sample(np.zeros(2), np.zeros(1), loop)
+
+
+def _warm_tick_correction(loop) -> None:
+    """Compile (or load) the loop now, through ``KoopmanCompensation.corrected_next`` itself with a
+    GP built as the controller's are (read-only arrays: ``_warm_gp_add``)."""
+    import numpy as np
+
+    from vflpcd.core.dynamics.compensation import KoopmanCompensation
+    from vflpcd.core.dynamics.sparse_gp import FITCGP, SEHyper
+
+    one = np.ones(1)
+    gp = FITCGP.fit(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 1)), SEHyper(one, one, one))
+    comp = KoopmanCompensation(np.eye(2), np.ones((2, 1)), np.ones((2, 1)), [0])
+    U = np.zeros((2, 2))
+    comp.corrected_next(U[1:] @ comp.A.T, U[:-1], np.zeros((1, 1)), gp, loop)
+
+
+def _warm_ald(loop) -> None:
+    """Compile (or load) the loop now, through ``ALDDictionary.consider`` itself."""
+    import numpy as np
+
+    from vflpcd.core.dynamics.ald import ALDDictionary
+
+    ald = ALDDictionary(2, 0.1, 4, delta_loop=loop)
+    ald.consider(np.zeros(2))
+    ald.consider(np.ones(2))
 
 
 def _warm_path(loop) -> None:

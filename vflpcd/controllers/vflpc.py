@@ -15,8 +15,8 @@ from vflpcd.core.guidance.planner3d import GuidancePlanner3D
 from vflpcd.core.guidance.tighten import Body
 from vflpcd.config.params import vflpc_params
 from vflpcd.core.vflpc import VFLPC, VFLPCParams
-from vflpcd.controllers.loops import (ebrhrl_loop, gp_add_loop, guidance_loops, path_loop, scheduled_problem_loop,
-                                     tick_loops)
+from vflpcd.controllers.loops import (ald_loop, ebrhrl_loop, gp_add_loop, guidance_loops, path_loop,
+                                     scheduled_problem_loop, tick_loops)
 from vflpcd.base.paths import config_dir
 from vflpcd.base.tomlread import load_table
 from vflpcd.config.vehicles import state_names
@@ -86,7 +86,7 @@ def compensator_for(model, params: VFLPCParams) -> OnlineCompensator:
     hyp = SEHyper(ell=np.full(n_y, params.gp_ell), sf2=np.full(n_y, params.gp_sf2), sn2=np.full(n_y, params.gp_sn2))
     bounds = tuple((float(np.log(lo)), float(np.log(hi))) for lo, hi in params.gp_bounds)
     return OnlineCompensator(comp, hyp, nu=params.gp_nu, m_max=params.gp_m_max, n_max=params.gp_n_max, bounds=bounds,
-                             add_loop=gp_add_loop())
+                             add_loop=gp_add_loop(), ald_loop=ald_loop())
 
 
 def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str = "vflpc",

@@ -45,10 +45,12 @@ _KINDS = {"none": KIND_NONE, "position": KIND_POSITION, "planar": KIND_PLANAR}  
 
 @dataclass(frozen=True)
 class TickLoops:
-    """``tick_kernel``'s loops, compiled: ``window_loop`` and ``linearisation_loop``."""
+    """The tick's loops, compiled: ``tick_kernel``'s ``window_loop`` and ``linearisation_loop``, and
+    ``gp_kernel.corrected_next_loop`` (the GP's mean in c_tau)."""
 
     window: Callable
     linearisation: Callable
+    correction: Callable
 
 
 @dataclass(frozen=True)
@@ -83,8 +85,8 @@ class ErrorModel:
     input matrix (B + s B_s) has its nominal pair (P, K_terminal, the solvers' priors) at
     s = ``schedule_at`` and its horizon linearised at the reference every tick (``_scheduled_linearisation``;
     ``problem_loop``: ``scheduled_kernel.problem_loop`` compiled, or None for the numpy path).
-    ``tick_loops``: ``tick_kernel``'s loops compiled (``TickLoops``: the window and the nominal
-    linearisation), or None for the numpy path."""
+    ``tick_loops``: the tick's loops compiled (``TickLoops``: the window, the nominal linearisation
+    and the GP's correction), or None for the numpy path."""
 
     def __init__(self, model: LiftedLinearModel, Q_x: np.ndarray, q_lift: float, R: np.ndarray, gamma: float,
                  N: int, limits: Limits, comp: KoopmanCompensation | None = None, gp_jacobians: bool = False,
@@ -149,7 +151,8 @@ class ErrorModel:
         U_r = frame.U_r
         u_r, nxt, A, B = self._scheduled_linearisation(U_r) if m.scheduled else self._linearisation(U_r)
         if gp is not None and self.comp is not None:
-            nxt = nxt + gp.means(self.comp.gp_input(U_r[:-1], u_r)) @ self.comp.B_d.T
+            nxt = self.comp.corrected_next(nxt, U_r[:-1], u_r, gp,
+                                           None if self.tick_loops is None else self.tick_loops.correction)
         if gp is not None and self.comp is not None and self.gp_jacobians:
             jac = [self.comp.jacobians(U_r[k], u_r[k], gp) for k in range(N)]     # a scheduled model's bilinear term included
             A = np.array([a[:-1, :-1] for a, _ in jac])

@@ -16,6 +16,8 @@ are rejected and counted.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from vflpcd.core.dynamics.sparse_gp import sq_distances
@@ -27,13 +29,17 @@ class ALDDictionary:
 
     Counters: ``n_admitted``, ``n_replaced``, ``n_rejected_dependent`` (delta <= nu),
     ``n_rejected_full`` (full and not more novel than the most redundant element),
-    ``n_rejected_nonfinite``.
+    ``n_rejected_nonfinite``. ``delta_loop``: ``gp_kernel.ald_delta_loop`` compiled, for ``delta``
+    (None: numpy).
     """
 
-    def __init__(self, n_z: int, nu: float, m_max: int, sf2: float = 1.0, ell: float = 1.0) -> None:
+    def __init__(self, n_z: int, nu: float, m_max: int, sf2: float = 1.0, ell: float = 1.0,
+                 delta_loop=None) -> None:
         if nu <= 0 or m_max < 1 or sf2 <= 0 or ell <= 0:
             raise ValueError("need nu > 0, m_max >= 1, sf2 > 0, ell > 0")
         self.n_z, self.nu, self.m_max, self.sf2, self.ell = n_z, float(nu), int(m_max), float(sf2), float(ell)
+        self._nh = -0.5 / self.ell ** 2         # the SE kernel's exponent factor
+        self._delta_loop = delta_loop           # gp_kernel.ald_delta_loop compiled (the same numbers), None: numpy
         self._D = np.empty((0, n_z))
         self._tags = np.empty(0, dtype=np.int64)
         self._P = np.empty((0, 0))            # K_DD^-1 (m, m)
@@ -56,11 +62,13 @@ class ALDDictionary:
         return self._tags.copy()
 
     def _k(self, z: np.ndarray) -> np.ndarray:
-        return self.sf2 * np.exp(-0.5 / self.ell ** 2 * sq_distances(self._D, z)[:, 0])
+        return self.sf2 * np.exp(self._nh * sq_distances(self._D, z)[:, 0])
 
     def delta(self, z: np.ndarray) -> float:
         """ALD value of z (n_z,) against the current dictionary (k(z,z) when empty)."""
         z = np.asarray(z, dtype=float).reshape(-1)
+        if self._delta_loop is not None:
+            return float(self._delta_loop(self._D, z, self._P, self.sf2, self._nh))
         k = self._k(z)
         return float(self.sf2 - k @ (self._P @ k))
 
@@ -94,7 +102,7 @@ class ALDDictionary:
         if tag is None:
             tag = self._next_tag
         self._next_tag = max(self._next_tag, int(tag)) + 1
-        if z.shape != (self.n_z,) or not np.all(np.isfinite(z)):
+        if z.shape != (self.n_z,) or not all(map(math.isfinite, z.tolist())):
             self.n_rejected_nonfinite += 1
             return False
         d = self.delta(z)

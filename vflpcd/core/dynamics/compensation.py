@@ -87,6 +87,14 @@ class KoopmanCompensation:
         U, u = np.asarray(U, dtype=float), np.asarray(u, dtype=float)
         return np.concatenate([U[..., self.z_index], u], axis=-1)
 
+    def corrected_next(self, nxt: np.ndarray, U: np.ndarray, u: np.ndarray, gp: FITCGP, loop=None) -> np.ndarray:
+        """nxt (N, n_K) + B_d m(z) at z = ``gp_input(U, u)`` (U (N, n_K), u (N, n_u)): the horizon's
+        nominal next lifted states corrected by the GP's mean (a new array). ``loop``:
+        ``gp_kernel.corrected_next_loop`` compiled (the same numbers to 1e-12), None for numpy."""
+        if loop is not None:
+            return loop(nxt, U, u, self.z_index, gp.Zm, gp.hyp.sf2, gp._nh_inv_ell2, gp.alpha, self.B_d)
+        return nxt + gp.means(self.gp_input(U, u)) @ self.B_d.T
+
     def nominal(self, U: np.ndarray, u: np.ndarray) -> np.ndarray:
         """A U + (B + s B_s) u for U (..., n_K), u (..., n_u) -> (..., n_K)."""
         return scheduled_step(self.A, self.B, self.B_s, self.schedule, U, u)
@@ -167,7 +175,8 @@ class OnlineCompensator:
     nu, m_max: ALD threshold and dictionary cap (= number of inducing points); n_max: training
     buffer length; ald_ell: ALD kernel length scale (default min(hyp0.ell); ALD uses sf2 = 1,
     so nu is relative). Refit options (optimise, bounds, jitter, max_cond) go to ``refit``;
-    ``add_loop``: ``gp_kernel.add_sample_loop`` compiled, for the per-sample update (None: numpy).
+    ``add_loop``: ``gp_kernel.add_sample_loop`` compiled, for the per-sample update, ``ald_loop``:
+    ``gp_kernel.ald_delta_loop`` compiled, for the dictionary's test (None: numpy).
     Every call comes from the owner's thread; a refit runs elsewhere (a worker) on the snapshot
     that ``refit_job`` takes, and ``install`` replays into its model the samples observed meanwhile.
     """
@@ -175,12 +184,12 @@ class OnlineCompensator:
     def __init__(self, comp: KoopmanCompensation, hyp0: SEHyper, *, nu: float = 1e-2,
                  m_max: int = 64, n_max: int = 300, ald_ell: float | None = None,
                  optimise: bool = True, bounds=DEFAULT_BOUNDS, jitter: float = 1e-8,
-                 max_cond: float = 1e12, add_loop=None) -> None:
+                 max_cond: float = 1e12, add_loop=None, ald_loop=None) -> None:
         if hyp0.n_y != comp.n_y:
             raise ValueError(f"hyp0 has {hyp0.n_y} outputs, B_d has {comp.n_y}")
         self.comp, self.hyp0 = comp, hyp0
         ell = float(np.min(hyp0.ell)) if ald_ell is None else float(ald_ell)
-        self.dictionary = ALDDictionary(comp.n_z, nu, m_max, 1.0, ell)
+        self.dictionary = ALDDictionary(comp.n_z, nu, m_max, 1.0, ell, delta_loop=ald_loop)
         self._buffer: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=n_max)
         self._seq = 0
         self._model: FITCGP | None = None

@@ -8,6 +8,7 @@ import pytest
 from vflpcd.config.koopman_file import load_koopman
 from vflpcd.core.control.error_model import ErrorModel, Limits, TickLoops
 from vflpcd.core.control.tick_kernel import linearisation_loop, window_loop
+from vflpcd.core.dynamics.gp_kernel import corrected_next_loop
 from vflpcd.core.dynamics.lifted import LiftedLinearModel
 from vflpcd.base.paths import config_dir
 
@@ -71,7 +72,8 @@ def compiled():
 @pytest.mark.parametrize("run", ["compiled", "as python"])
 def test_the_loops_give_the_numpy_paths_frame_and_problem(compiled, name, wrap, run):
     model = _models()[name]
-    loops = compiled if run == "compiled" else TickLoops(window=window_loop, linearisation=linearisation_loop)
+    loops = compiled if run == "compiled" else TickLoops(window=window_loop, linearisation=linearisation_loop,
+                                                         correction=corrected_next_loop)
     rng = np.random.default_rng(7)
     for _ in range(5):
         x0, ref = _states(model, rng, wrap)

@@ -103,6 +103,8 @@ def test_the_gp_mean_corrects_c_and_the_jacobians_only_on_request(straight, gp_j
     ctrl = make_vflpc_ml(straight)
     em = ctrl.errors
     em.gp_jacobians = gp_jacobians
+    if em.tick_loops is not None:       # the stand-in has the GP's methods, not its arrays: the numpy correction
+        em.tick_loops = dataclasses.replace(em.tick_loops, correction=None)
     x0 = make_plant(straight, 0).state
     ctrl.step(x0, 0.0)
     frame = em.frame(x0, ctrl._reference(0.0))
