@@ -42,7 +42,7 @@ import numpy as np
 from vflpcd.core.control.barrier import HorizonBarrier, safety_points
 from vflpcd.core.control.ebrhrl import EbRHRL, KernelFeatures
 from vflpcd.core.control.error_model import ErrorModel, Limits, TickFrame
-from vflpcd.core.control.game_region import threats
+from vflpcd.core.control.game_region import threat_at
 from vflpcd.core.control.horizon_reference import HorizonReference
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
@@ -261,8 +261,6 @@ class VFLPC(ControllerBase):
         self.N = max(1, int(round(params.horizon_s / self.dt)))
         self._horizon_offsets = self.dt * np.arange(self.N + 1)     # tau dt, tau = 0 .. N
         self._rate_arrays = tuple(np.zeros((self.N, model.n_u)) for _ in range(3))   # _rate_bounds' (in place)
-        d = planner.dim
-        self._no_threat = (np.zeros((0, self.N + 1, d)), np.zeros((0, self.N + 1, d)), np.zeros(0))   # x_p, n_p, mu
         self._body = planner.body
         self._road_bend = None                    # the route's bend at its points, for _road_slip
         if self._body.slips:
@@ -271,6 +269,9 @@ class VFLPC(ControllerBase):
         self.dim = planner.dim
         names, layout = model.state_names, PoseLayout.of(model.state_names)
         self._pos_index = np.array(layout.position)
+        d = planner.dim                 # the barrier without a threat: zero (its reference positions are not used)
+        self._no_threat = HorizonBarrier(self._pos_index, np.zeros((self.N + 1, d)), np.zeros((0, self.N + 1, d)),
+                                         np.zeros((0, self.N + 1, d)), np.zeros(0))
         if layout.kind == "planar":                     # heading, body velocities
             self._vel_index = np.array([layout.heading, names.index("vx"), names.index("vy")])
         else:                                           # world velocities
@@ -657,30 +658,37 @@ class VFLPC(ControllerBase):
         return lo, hi
 
     def _barrier(self, frame: TickFrame, ref: np.ndarray, pos, vel, t: float, obstacles) -> HorizonBarrier:
-        """The barrier of the movers in E_p (module docstring, step 4); ``ref``: the world reference states."""
+        """The barrier of the movers in E_p (module docstring, step 4); ``ref``: the world reference
+        states. Each mover is tested in floats (``threat_at``, its centre predicted to t as
+        ``ObstacleState.center_at`` does); without a threat the barrier is zero (``_no_threat``)."""
         self.last_threats = ()
-        idx = self._pos_index
-        p_ref = frame.x_r[:, idx]
         p = self.params
         movers = [o for o in obstacles if o.moving] if p.mu != 0.0 and p.max_threats != 0 else []
         if not movers:                                      # static obstacles are the guidance's
-            return HorizonBarrier(idx, p_ref, *self._no_threat)
+            return self._no_threat
         grow = self.body_radius + self.safety_margin
-        centers = np.array([o.center_at(t) for o in movers])
-        l = [o.shape.bounding_radius() + grow for o in movers]
-        mask = threats(pos, vel, centers, np.array([o.velocity for o in movers]), l, p.l_safe)
-        if not mask.any():
-            return HorizonBarrier(idx, p_ref, *self._no_threat)
-        chosen = sorted(np.flatnonzero(mask), key=lambda i: vector_norm(centers[i] - pos))[: p.max_threats]
-        self.last_threats = tuple(movers[i].id for i in chosen)
+        pos_l, vel_l = pos.tolist(), vel.tolist()
+        v_e = math.sqrt(sum(v * v for v in vel_l))
+        near = []
+        for o in movers:
+            v_p, dt = o.velocity.tolist(), t - o.stamp
+            relative = [c + v * dt - q for c, v, q in zip(o.center.tolist(), v_p, pos_l)]
+            if threat_at(relative, vel_l, v_e, math.sqrt(sum(v * v for v in v_p)),
+                         o.shape.bounding_radius() + grow, p.l_safe):
+                near.append((math.sqrt(sum(r * r for r in relative)), len(near), o))
+        if not near:
+            return self._no_threat
+        chosen = [o for _, _, o in sorted(near)[: p.max_threats]]
+        self.last_threats = tuple(o.id for o in chosen)
         times = t + self._horizon_offsets
         p_world = ref[:, self._pos_index]
         xs, ns = [], []
-        for i in chosen:
-            x_p, n_p = safety_points(movers[i], p_world, times, grow)
+        for o in chosen:
+            x_p, n_p = safety_points(o, p_world, times, grow)
             xs.append(self.errors.to_window(frame, x_p))
             ns.append(self.errors.to_window(frame, n_p, vectors=True))
-        return HorizonBarrier(idx, p_ref, np.array(xs), np.array(ns), np.full(len(chosen), p.mu), p.barrier_length)
+        return HorizonBarrier(self._pos_index, frame.x_r[:, self._pos_index], np.array(xs), np.array(ns),
+                              np.full(len(chosen), p.mu), p.barrier_length)
 
     def _solve(self, problem: HorizonProblem, barrier: HorizonBarrier, K_terminal: np.ndarray) -> np.ndarray:
         """The solver's first input of ``problem``; the terminal LQR law -K_terminal x0 on failure."""

@@ -91,31 +91,29 @@ def evader_frame(relative: np.ndarray, evader_velocity: np.ndarray) -> np.ndarra
     return np.array([evader_frame_at(r, v) for r in rel.tolist()]).reshape(len(rel), 2)
 
 
+def threat_at(relative: list[float], evader_velocity: list[float], v_e: float, v_p: float, l: float,
+              l_safe: float) -> bool:
+    """Whether one pursuer is in E_p: its position relative to the evader (d,) world, the evader's
+    velocity (d,) world and speed v_e, the pursuer's speed v_p, safety distance l, margin l_safe."""
+    if math.sqrt(sum(r * r for r in relative)) > l + l_safe:         # E_p1 (||zeta|| is the distance)
+        return False
+    if v_e <= V_EVADER_MIN:                   # no velocity frame: inside E_p1 is a threat
+        return True
+    X, Y = evader_frame_at(relative, evader_velocity)
+    return in_region_at(X, Y, l, l_safe, bup_angle_at(v_p, v_e))
+
+
 def threats(robot_position: np.ndarray, robot_velocity: np.ndarray, centers: np.ndarray,
             velocities: np.ndarray, l: np.ndarray, l_safe: float) -> np.ndarray:
-    """Which pursuers are in E_p: robot position/velocity (d,) world, pursuer centres and
-    velocities (K, d) world, safety distances l (K,). Returns (K,) bool."""
+    """``threat_at`` of pursuers: robot position/velocity (d,) world, pursuer centres and velocities
+    (K, d) world, safety distances l (K,) (or scalar). Returns (K,) bool."""
     position = np.asarray(robot_position, float)
     centers = np.asarray(centers, float).reshape(-1, len(position))
     K = centers.shape[0]
-    out = np.zeros(K, dtype=bool)
-    if K == 0:
-        return out
     relative = (centers - position).tolist()
-    l = np.asarray(l, float)
-    l = [float(l)] * K if l.ndim == 0 else l.tolist()
+    l = np.broadcast_to(np.asarray(l, float), (K,)).tolist()
     vel = np.asarray(robot_velocity, float).tolist()
     v_e = math.sqrt(sum(v * v for v in vel))
-    speeds = None
-    for k in range(K):
-        if math.sqrt(sum(r * r for r in relative[k])) > l[k] + l_safe:     # E_p1 (||zeta|| is the distance)
-            continue
-        if v_e <= V_EVADER_MIN:               # no velocity frame: inside E_p1 is a threat
-            out[k] = True
-            continue
-        if speeds is None:
-            v_p = np.asarray(velocities, float).reshape(K, -1)
-            speeds = np.sqrt((v_p * v_p).sum(axis=1)).tolist()
-        X, Y = evader_frame_at(relative[k], vel)
-        out[k] = in_region_at(X, Y, l[k], l_safe, bup_angle_at(speeds[k], v_e))
-    return out
+    v_p = np.asarray(velocities, float).reshape(K, -1).tolist()
+    return np.array([threat_at(relative[k], vel, v_e, math.sqrt(sum(v * v for v in v_p[k])), l[k], l_safe)
+                     for k in range(K)], dtype=bool)
