@@ -668,14 +668,13 @@ class VFLPC(ControllerBase):
             return self._no_threat
         grow = self.body_radius + self.safety_margin
         pos_l, vel_l = pos.tolist(), vel.tolist()
-        v_e = math.sqrt(sum(v * v for v in vel_l))
+        v_e = math.hypot(*vel_l)
         near = []
         for o in movers:
             v_p, dt = o.velocity.tolist(), t - o.stamp
             relative = [c + v * dt - q for c, v, q in zip(o.center.tolist(), v_p, pos_l)]
-            if threat_at(relative, vel_l, v_e, math.sqrt(sum(v * v for v in v_p)),
-                         o.shape.bounding_radius() + grow, p.l_safe):
-                near.append((math.sqrt(sum(r * r for r in relative)), len(near), o))
+            if threat_at(relative, vel_l, v_e, math.hypot(*v_p), o.shape.bounding_radius() + grow, p.l_safe):
+                near.append((math.hypot(*relative), len(near), o))
         if not near:
             return self._no_threat
         chosen = [o for _, _, o in sorted(near)[: p.max_threats]]

@@ -25,6 +25,7 @@ The array functions apply them row by row.
 from __future__ import annotations
 
 import math
+import operator
 
 import numpy as np
 
@@ -75,13 +76,13 @@ def evader_frame_at(relative: list[float], evader_velocity: list[float]) -> tupl
     evader frame: Y_e along the evader velocity (d,), X_e >= 0 the distance off that axis. E_p is
     mirror-symmetric in X_e (H1 and H2 mirror each other), so the side is not needed, and the same
     (X_e, Y_e) serves the planar and the 3-D robot (E_p rotated about the velocity axis)."""
-    speed = math.sqrt(sum(v * v for v in evader_velocity))
+    speed = math.hypot(*evader_velocity)
     if speed > V_EVADER_MIN:
         ey = [v / speed for v in evader_velocity]
     else:
         ey = [0.0, 1.0, 0.0][: len(evader_velocity)]
-    Y = sum(r * e for r, e in zip(relative, ey))
-    return math.sqrt(sum((r - Y * e) ** 2 for r, e in zip(relative, ey))), Y
+    Y = sum(map(operator.mul, relative, ey))
+    return math.hypot(*[r - Y * e for r, e in zip(relative, ey)]), Y
 
 
 def evader_frame(relative: np.ndarray, evader_velocity: np.ndarray) -> np.ndarray:
@@ -95,7 +96,7 @@ def threat_at(relative: list[float], evader_velocity: list[float], v_e: float, v
               l_safe: float) -> bool:
     """Whether one pursuer is in E_p: its position relative to the evader (d,) world, the evader's
     velocity (d,) world and speed v_e, the pursuer's speed v_p, safety distance l, margin l_safe."""
-    if math.sqrt(sum(r * r for r in relative)) > l + l_safe:         # E_p1 (||zeta|| is the distance)
+    if math.hypot(*relative) > l + l_safe:                           # E_p1 (||zeta|| is the distance)
         return False
     if v_e <= V_EVADER_MIN:                   # no velocity frame: inside E_p1 is a threat
         return True
@@ -113,7 +114,7 @@ def threats(robot_position: np.ndarray, robot_velocity: np.ndarray, centers: np.
     relative = (centers - position).tolist()
     l = np.broadcast_to(np.asarray(l, float), (K,)).tolist()
     vel = np.asarray(robot_velocity, float).tolist()
-    v_e = math.sqrt(sum(v * v for v in vel))
+    v_e = math.hypot(*vel)
     v_p = np.asarray(velocities, float).reshape(K, -1).tolist()
-    return np.array([threat_at(relative[k], vel, v_e, math.sqrt(sum(v * v for v in v_p[k])), l[k], l_safe)
+    return np.array([threat_at(relative[k], vel, v_e, math.hypot(*v_p[k]), l[k], l_safe)
                      for k in range(K)], dtype=bool)
