@@ -63,6 +63,7 @@ class ReferencePath:
         self.curvature = self._curvature()
         self._seg_vec = np.diff(pts, axis=0)
         self._seg_len2 = seg ** 2
+        self._seg_index = np.arange(len(seg))       # the compiled search's candidates are slices of it
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -200,7 +201,7 @@ class ReferencePath:
             return self._nearest(p, s_hint, back, ahead)[0]
         idx = self._searched(s_hint, back, ahead)
         if isinstance(idx, slice):
-            idx = np.arange(idx.start, idx.stop)
+            idx = self._seg_index[idx]
         i, w = loop(p, self.points, self._seg_vec, self._seg_len2, idx)
         return float(self.s[i] + w * np.sqrt(self._seg_len2[i]))
 
@@ -211,8 +212,8 @@ class ReferencePath:
             return slice(0, len(self._seg_vec))
         lo, span = s_hint - back, back + ahead
         if not self.closed:                   # s is sorted
-            i0 = int(np.searchsorted(self.s[1:], lo, side="left"))
-            i1 = int(np.searchsorted(self.s[:-1], lo + span, side="right"))
+            i0 = int(self.s[1:].searchsorted(lo, side="left"))
+            i1 = int(self.s[:-1].searchsorted(lo + span, side="right"))
             if i1 <= i0:
                 i0 = len(self._seg_vec) - 1 if lo > 0 else 0
                 i1 = i0 + 1
