@@ -74,6 +74,7 @@ def ald_loop():
     (``_warm_ald``), or None without numba."""
     from vflpcd.core.dynamics.gp_kernel import ald_delta_loop
 
+    _algebra()
     return _compiled("gp_ald", ald_delta_loop, _warm_ald)
 
 
@@ -144,9 +145,10 @@ def _algebra() -> bool:
         from numba.extending import register_jitable
     except ImportError:
         return False
-    from vflpcd.core.loop_algebra import matvec
+    from vflpcd.core.loop_algebra import matvec, row_sq_distance
 
     register_jitable(matvec)
+    register_jitable(row_sq_distance)
     return True
 
 

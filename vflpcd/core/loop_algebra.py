@@ -11,3 +11,12 @@ def matvec(M, x, out):
         for j in range(M.shape[1]):
             acc += M[i, j] * x[j]
         out[i] = acc
+
+
+def row_sq_distance(A, j, z):
+    """|A[j] - z|^2 for A (m, n) and z (n,), one sum in column order."""
+    acc = 0.0
+    for i in range(z.shape[0]):
+        e = A[j, i] - z[i]
+        acc += e * e
+    return acc

@@ -27,21 +27,17 @@ import math
 
 import numpy as np
 
-from vflpcd.core.loop_algebra import matvec
+from vflpcd.core.loop_algebra import matvec, row_sq_distance
 
 
 def add_sample_loop(Zm, sf2, nh_inv_ell2, sn2, Linv, Ainv, c, z, y):
-    n_y, m, n_z = Linv.shape[0], Zm.shape[0], Zm.shape[1]
+    n_y, m = Linv.shape[0], Zm.shape[0]
     Ainv_new = np.empty_like(Ainv)
     c_new = np.empty_like(c)
     alpha = np.empty_like(c)
     d2 = np.empty(m)
     for j in range(m):
-        acc = 0.0
-        for i in range(n_z):
-            e = Zm[j, i] - z[i]
-            acc += e * e
-        d2[j] = acc
+        d2[j] = row_sq_distance(Zm, j, z)
     k = np.empty(m)
     v = np.empty(m)
     w = np.empty(m)
@@ -81,10 +77,7 @@ def corrected_next_loop(nxt, U, u, z_index, Zm, sf2, nh_inv_ell2, alpha, B_d):
         for a in range(n_y):
             mean[a] = 0.0
         for j in range(m):
-            d2 = 0.0
-            for i in range(n_z):
-                e = z[i] - Zm[j, i]
-                d2 += e * e
+            d2 = row_sq_distance(Zm, j, z)
             for a in range(n_y):
                 mean[a] += sf2[a] * math.exp(nh_inv_ell2[a, 0] * d2) * alpha[a, j]
         for r in range(n_K):
@@ -96,14 +89,10 @@ def corrected_next_loop(nxt, U, u, z_index, Zm, sf2, nh_inv_ell2, alpha, B_d):
 
 
 def ald_delta_loop(D, z, P, sf2, nh_inv_ell2):
-    m, n_z = D.shape
+    m = D.shape[0]
     k = np.empty(m)
     for j in range(m):
-        d2 = 0.0
-        for i in range(n_z):
-            e = D[j, i] - z[i]
-            d2 += e * e
-        k[j] = sf2 * math.exp(nh_inv_ell2 * d2)
+        k[j] = sf2 * math.exp(nh_inv_ell2 * row_sq_distance(D, j, z))
     quad = 0.0
     for i in range(m):
         acc = 0.0
