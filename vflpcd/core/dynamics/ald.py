@@ -67,7 +67,9 @@ class ALDDictionary:
     def delta(self, z: np.ndarray) -> float:
         """ALD value of z (n_z,) against the current dictionary (k(z,z) when empty)."""
         z = np.asarray(z, dtype=float).reshape(-1)
-        if self._delta_loop is not None:
+        if z.shape != (self.n_z,):
+            raise ValueError(f"expected z of {self.n_z} numbers, got {z.size}")
+        if self._delta_loop is not None:      # the loop does not check its indices: the shape is checked above
             return float(self._delta_loop(self._D, z, self._P, self.sf2, self._nh))
         k = self._k(z)
         return float(self.sf2 - k @ (self._P @ k))

@@ -91,7 +91,13 @@ class KoopmanCompensation:
         """nxt (N, n_K) + B_d m(z) at z = ``gp_input(U, u)`` (U (N, n_K), u (N, n_u)): the horizon's
         nominal next lifted states corrected by the GP's mean (a new array). ``loop``:
         ``gp_kernel.corrected_next_loop`` compiled (the same numbers to 1e-12), None for numpy."""
-        if loop is not None:
+        if loop is not None:          # the loop does not check its indices (numpy's shape errors): checked here
+            if gp.Zm.shape[1] != self.n_z or gp.alpha.shape[0] != self.n_y:
+                raise ValueError(f"a GP of {gp.Zm.shape[1]} inputs and {gp.alpha.shape[0]} outputs cannot "
+                                 f"correct this model ({self.n_z} inputs, {self.n_y} outputs)")
+            if U.shape != (len(nxt), self.n_K) or u.shape != (len(nxt), self.n_u) or nxt.shape[1:] != (self.n_K,):
+                raise ValueError(f"expected nxt and U (N, {self.n_K}), u (N, {self.n_u}); "
+                                 f"got {nxt.shape}, {U.shape}, {u.shape}")
             return loop(nxt, U, u, self.z_index, gp.Zm, gp.hyp.sf2, gp._nh_inv_ell2, gp.alpha, self.B_d)
         return nxt + gp.means(self.gp_input(U, u)) @ self.B_d.T
 

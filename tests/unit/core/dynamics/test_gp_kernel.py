@@ -86,3 +86,28 @@ def test_the_ald_loop_gives_the_numpy_dictionary(m_max, run):
     assert plain.n_admitted > m_max and plain.n_rejected_dependent > 0    # full, replacing, and rejecting
     np.testing.assert_array_equal(fast.tags, plain.tags)
     np.testing.assert_allclose(fast.points, plain.points, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("run", ["compiled", "as python"])
+def test_the_loops_are_not_handed_shapes_they_would_read_past(run):
+    """The loops do not check their indices; the methods that call them refuse a GP, a horizon or a
+    sample of the wrong size with a ValueError (the numpy paths raise numpy's shape errors)."""
+    correction = _compiled("correction") if run == "compiled" else corrected_next_loop
+    ald_loop = _compiled("ald") if run == "compiled" else ald_delta_loop
+    n_K, n_u, N = 9, 2, 4
+    B_d = np.zeros((n_K, 5))
+    B_d[[2, 3, 4, 5, 6], range(5)] = 1.0
+    comp = KoopmanCompensation(np.eye(n_K), np.ones((n_K, n_u)), B_d, [2, 3, 4, 5, 6, 7])
+    gp = _runs(add_sample_loop, 2, 6)[0]
+    U, u = np.zeros((N, n_K)), np.zeros((N, n_u))
+    with pytest.raises(ValueError, match="expected nxt and U"):
+        comp.corrected_next(U, U, np.zeros((N, n_u + 1)), gp, correction)
+    with pytest.raises(ValueError):
+        comp.corrected_next(U, U, np.zeros((N, n_u + 1)), gp)
+    narrow = KoopmanCompensation(np.eye(n_K), np.ones((n_K, n_u)), B_d, [2, 3, 4])
+    with pytest.raises(ValueError, match="cannot correct"):
+        narrow.corrected_next(U, U, u, gp, correction)
+    ald = ALDDictionary(4, 0.05, 8, delta_loop=ald_loop)
+    ald.consider(np.zeros(4))
+    with pytest.raises(ValueError, match="expected z of 4"):
+        ald.delta(np.zeros(6))
