@@ -221,32 +221,34 @@ def _warm_tick_linearisation(loop) -> None:
     loop(np.ones((2, 3)), np.eye(3), np.ones((3, 1)), np.ones((1, 1)), 1, -np.ones(1), np.ones(1))
 
 
-def _warm_gp_add(loop) -> None:
-    """Compile (or load) the loop now, through ``FITCGP.add_sample`` itself: its arrays are read-only,
-    a type of their own to numba (a loop warmed on writable ones compiled again at the first sample,
-    and the daemon's loop stalled 0.5 s)."""
+def _tiny_gp():
+    """A GP of one inducing input (two inputs, one output) built as the controller's are: its arrays
+    read-only, a type of their own to numba (a loop warmed on writable ones compiled again at the
+    first sample, and the daemon's loop stalled 0.5 s)."""
     import numpy as np
 
     from vflpcd.core.dynamics.sparse_gp import FITCGP, SEHyper
 
     one = np.ones(1)
-    gp = FITCGP.fit(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 1)), SEHyper(one, one, one))
-    gp.add_sample(np.zeros(2), np.zeros(1), loop)
+    return FITCGP.fit(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 1)), SEHyper(one, one, one))
+
+
+def _warm_gp_add(loop) -> None:
+    """Compile (or load) the loop now, through ``FITCGP.add_sample`` itself (``_tiny_gp``)."""
+    import numpy as np
+
+    _tiny_gp().add_sample(np.zeros(2), np.zeros(1), loop)
 
 
 def _warm_tick_correction(loop) -> None:
-    """Compile (or load) the loop now, through ``KoopmanCompensation.corrected_next`` itself with a
-    GP built as the controller's are (read-only arrays: ``_warm_gp_add``)."""
+    """Compile (or load) the loop now, through ``KoopmanCompensation.corrected_next`` itself (``_tiny_gp``)."""
     import numpy as np
 
     from vflpcd.core.dynamics.compensation import KoopmanCompensation
-    from vflpcd.core.dynamics.sparse_gp import FITCGP, SEHyper
 
-    one = np.ones(1)
-    gp = FITCGP.fit(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 1)), SEHyper(one, one, one))
     comp = KoopmanCompensation(np.eye(2), np.ones((2, 1)), np.ones((2, 1)), [0])
     U = np.zeros((2, 2))
-    comp.corrected_next(U[1:] @ comp.A.T, U[:-1], np.zeros((1, 1)), gp, loop)
+    comp.corrected_next(U[1:] @ comp.A.T, U[:-1], np.zeros((1, 1)), _tiny_gp(), loop)
 
 
 def _warm_ald(loop) -> None:

@@ -659,21 +659,21 @@ class VFLPC(ControllerBase):
 
     def _barrier(self, frame: TickFrame, ref: np.ndarray, pos, vel, t: float, obstacles) -> HorizonBarrier:
         """The barrier of the movers in E_p (module docstring, step 4); ``ref``: the world reference
-        states. Each mover is tested in floats (``threat_at``, its centre predicted to t as
-        ``ObstacleState.center_at`` does); without a threat the barrier is zero (``_no_threat``)."""
+        states. Each mover is tested in floats (``threat_at``); without a threat the barrier is zero
+        (``_no_threat``)."""
         self.last_threats = ()
         p = self.params
         movers = [o for o in obstacles if o.moving] if p.mu != 0.0 and p.max_threats != 0 else []
         if not movers:                                      # static obstacles are the guidance's
             return self._no_threat
         grow = self.body_radius + self.safety_margin
-        pos_l, vel_l = pos.tolist(), vel.tolist()
+        vel_l = vel.tolist()
         v_e = math.hypot(*vel_l)
         near = []
         for o in movers:
-            v_p, dt = o.velocity.tolist(), t - o.stamp
-            relative = [c + v * dt - q for c, v, q in zip(o.center.tolist(), v_p, pos_l)]
-            if threat_at(relative, vel_l, v_e, math.hypot(*v_p), o.shape.bounding_radius() + grow, p.l_safe):
+            relative = (o.center_at(t) - pos).tolist()
+            if threat_at(relative, vel_l, v_e, math.hypot(*o.velocity.tolist()), o.shape.bounding_radius() + grow,
+                         p.l_safe):
                 near.append((math.hypot(*relative), len(near), o))
         if not near:
             return self._no_threat

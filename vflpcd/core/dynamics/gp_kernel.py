@@ -69,6 +69,7 @@ def corrected_next_loop(nxt, U, u, z_index, Zm, sf2, nh_inv_ell2, alpha, B_d):
     out = nxt.copy()
     z = np.empty(n_z)
     mean = np.empty(n_y)
+    shift = np.empty(n_K)
     for k in range(N):
         for i in range(n_zx):
             z[i] = U[k, z_index[i]]
@@ -80,11 +81,9 @@ def corrected_next_loop(nxt, U, u, z_index, Zm, sf2, nh_inv_ell2, alpha, B_d):
             d2 = row_sq_distance(Zm, j, z)
             for a in range(n_y):
                 mean[a] += sf2[a] * math.exp(nh_inv_ell2[a, 0] * d2) * alpha[a, j]
+        matvec(B_d, mean, shift)
         for r in range(n_K):
-            acc = 0.0
-            for a in range(n_y):
-                acc += B_d[r, a] * mean[a]
-            out[k, r] += acc
+            out[k, r] += shift[r]
     return out
 
 
@@ -93,10 +92,9 @@ def ald_delta_loop(D, z, P, sf2, nh_inv_ell2):
     k = np.empty(m)
     for j in range(m):
         k[j] = sf2 * math.exp(nh_inv_ell2 * row_sq_distance(D, j, z))
+    Pk = np.empty(m)
+    matvec(P, k, Pk)
     quad = 0.0
     for i in range(m):
-        acc = 0.0
-        for j in range(m):
-            acc += P[i, j] * k[j]
-        quad += k[i] * acc
+        quad += k[i] * Pk[i]
     return sf2 - quad
