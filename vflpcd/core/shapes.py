@@ -22,8 +22,9 @@ nearest boundary point, not a bound):
   use Eberly's closed-form branches.  The same root is the nearest point inside.
 
 ``distance_and_normal`` returns the signed distance with its unit gradient (the outward normal
-at the nearest boundary point): in closed form for circles, spheres, boxes and box3s, by central
-differences (step ``NORMAL_FD_STEP``) of the signed distance otherwise; where the gradient
+at the nearest boundary point): in closed form for circles, spheres, boxes and box3s, from the
+nearest point of the same root for ellipses and ellipsoids, by central differences (step
+``NORMAL_FD_STEP``) of the signed distance otherwise (cylinders); where the gradient
 vanishes (the centre of a round shape, a point on a medial axis) the direction from the centre
 (or body x at the centre) stands in.
 
@@ -89,10 +90,10 @@ def _unit_or_radial(g: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def _ellipsoid_root(e: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Distance from points to an ellipse/ellipsoid, generic case of [1].
+    """Nearest points of an ellipse/ellipsoid, generic case of [1].
 
     e: (k,) semi-axes sorted descending; y: (N, k) with y >= 0 and y[:, -1] > 0.
-    Returns (N,) unsigned distances.  Solves G(u) = sum_i (w_i / (u + q_i))^2 - 1 = 0
+    Returns the nearest boundary points (N, k).  Solves G(u) = sum_i (w_i / (u + q_i))^2 - 1 = 0
     with w_i = e_i y_i / e_m^2, q_i = (e_i^2 - e_m^2) / e_m^2 (so q_m = 0); G is
     strictly decreasing and convex on u > 0 with G(z_m) >= 0 and G(|w|) <= 0, z_m = y_m / e_m.
     Newton's method from u = |w|: its first step lands left of the root (G convex), and from
@@ -116,35 +117,33 @@ def _ellipsoid_root(e: np.ndarray, y: np.ndarray) -> np.ndarray:
         u = u_new
         if done:
             break
-    x = (e**2 / em2) * y / (u[:, None] + q)
-    return np.sqrt(((x - y) ** 2).sum(axis=1))
+    return (e**2 / em2) * y / (u[:, None] + q)
 
 
-def _ellipse_dist(e: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Unsigned distance to an ellipse; e (2,) with e0 >= e1 > 0, y (N, 2) >= 0 -> (N,)."""
+def _ellipse_nearest(e: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Nearest points (N, 2) of an ellipse; e (2,) with e0 >= e1 > 0, y (N, 2) >= 0."""
     e0, e1 = float(e[0]), float(e[1])
-    d = np.empty(len(y))
+    x = np.empty_like(y)
     gen = y[:, 1] > 0.0
-    d[gen] = _ellipsoid_root(e, y[gen])
+    x[gen] = _ellipsoid_root(e, y[gen])
     # y1 == 0 (on the major axis): the nearest point leaves the axis iff
-    # y0 < (e0^2 - e1^2) / e0, then x0 = e0^2 y0 / (e0^2 - e1^2) [1, sec. 2].
+    # y0 < (e0^2 - e1^2) / e0, then x0 = e0^2 y0 / (e0^2 - e1^2) [1, sec. 2]; else it is the vertex.
     y0 = y[~gen, 0]
     den = e0 * e0 - e1 * e1
-    d_axis = np.abs(y0 - e0)
+    axis = np.column_stack([np.full(len(y0), e0), np.zeros(len(y0))])
     if den > 0.0:
         off = y0 < den / e0
         x0 = e0 * e0 * y0[off] / den
-        x1 = e1 * np.sqrt(np.clip(1.0 - (x0 / e0) ** 2, 0.0, None))
-        d_axis[off] = np.hypot(x0 - y0[off], x1)
-    d[~gen] = d_axis
-    return d
+        axis[off] = np.column_stack([x0, e1 * np.sqrt(np.clip(1.0 - (x0 / e0) ** 2, 0.0, None))])
+    x[~gen] = axis
+    return x
 
 
-def _ellipsoid_dist(e: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Unsigned distance to an ellipsoid; e (3,) descending > 0, y (N, 3) >= 0 -> (N,)."""
-    d = np.empty(len(y))
+def _ellipsoid_nearest(e: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Nearest points (N, 3) of an ellipsoid; e (3,) descending > 0, y (N, 3) >= 0."""
+    x = np.empty_like(y)
     gen = y[:, 2] > 0.0
-    d[gen] = _ellipsoid_root(e, y[gen])
+    x[gen] = _ellipsoid_root(e, y[gen])
     # y2 == 0 [1, sec. 3]: the nearest point leaves the plane z = 0 iff
     # x_i = e_i^2 y_i / (e_i^2 - e2^2) (i = 0, 1) lies strictly inside the ellipse.
     yz = y[~gen, :2]
@@ -153,22 +152,46 @@ def _ellipsoid_dist(e: np.ndarray, y: np.ndarray) -> np.ndarray:
     xde = num / np.where(den > 0.0, den, 1.0)
     discr = 1.0 - np.sum(xde**2, axis=1)
     off = np.all(num < den, axis=1) & (discr > 0.0)
-    d_plane = np.empty(len(yz))
-    d_plane[off] = np.sqrt(np.sum((e[:2] * xde[off] - yz[off]) ** 2, axis=1) + e[2] ** 2 * discr[off])
-    d_plane[~off] = _ellipse_dist(e[:2], yz[~off])
-    d[~gen] = d_plane
-    return d
+    plane = np.zeros((len(yz), 3))
+    plane[off, :2] = e[:2] * xde[off]
+    plane[off, 2] = e[2] * np.sqrt(discr[off])
+    plane[~off, :2] = _ellipse_nearest(e[:2], yz[~off])
+    x[~gen] = plane
+    return x
 
 
-def _ellipsoidal_sd(p: np.ndarray, axes: tuple[float, ...]) -> np.ndarray:
-    """Signed distance to an axis-aligned ellipse/ellipsoid at the origin; p (N, k) -> (N,)."""
+def _ellipsoidal_nearest(p: np.ndarray, axes: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """An axis-aligned ellipse/ellipsoid at the origin, for body points p (N, k): the semi-axes e
+    sorted descending, the points y reflected into the first quadrant/octant in that order, their
+    nearest boundary points x (N, k) there, and the order (``argsort`` of -axes)."""
     e = np.asarray(axes, dtype=float)
     order = np.argsort(-e, kind="stable")
     e = e[order]
     y = np.abs(p[:, order])
-    d = _ellipse_dist(e, y) if len(e) == 2 else _ellipsoid_dist(e, y)
-    inside = np.sum((y / e) ** 2, axis=1) < 1.0
-    return np.where(inside, -d, d)
+    return e, y, (_ellipse_nearest(e, y) if len(e) == 2 else _ellipsoid_nearest(e, y)), order
+
+
+def _ellipsoidal_signed(e: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The signed distance (N,) of the reflected points y (N, k) whose nearest points are x."""
+    d = np.sqrt(((x - y) ** 2).sum(axis=1))
+    return np.where(np.sum((y / e) ** 2, axis=1) < 1.0, -d, d)
+
+
+def _ellipsoidal_sd(p: np.ndarray, axes: tuple[float, ...]) -> np.ndarray:
+    """Signed distance to an axis-aligned ellipse/ellipsoid at the origin; p (N, k) -> (N,)."""
+    e, y, x, _ = _ellipsoidal_nearest(p, axes)
+    return _ellipsoidal_signed(e, y, x)
+
+
+def _ellipsoidal_sd_normal(p: np.ndarray, axes: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance (N,) and its unit gradient (N, k) for an axis-aligned ellipse/ellipsoid at
+    the origin: the outward normal at the nearest boundary point x, along the gradient x_i / e_i^2
+    of sum_i (x_i / e_i)^2, reflected back to p's quadrant/octant (+ on a coordinate plane)."""
+    e, y, x, order = _ellipsoidal_nearest(p, axes)
+    g = x / (e * e)
+    body = np.empty_like(p)
+    body[:, order] = g / np.linalg.norm(g, axis=1, keepdims=True) * np.where(p[:, order] < 0.0, -1.0, 1.0)
+    return _ellipsoidal_signed(e, y, x), body
 
 
 # --------------------------------------------------------------------------- base classes
@@ -324,6 +347,9 @@ class Ellipse(Shape2D):
     def _sd_body(self, p):
         return _ellipsoidal_sd(p, (self.a, self.b))
 
+    def _sd_normal_body(self, p):
+        return _ellipsoidal_sd_normal(p, (self.a, self.b))
+
     def bounding_radius(self) -> float:
         return max(self.a, self.b)
 
@@ -406,6 +432,9 @@ class Ellipsoid(Shape):
 
     def _sd_body(self, p):
         return _ellipsoidal_sd(p, (self.a, self.b, self.c))
+
+    def _sd_normal_body(self, p):
+        return _ellipsoidal_sd_normal(p, (self.a, self.b, self.c))
 
     def bounding_radius(self) -> float:
         return max(self.a, self.b, self.c)

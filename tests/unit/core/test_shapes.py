@@ -404,3 +404,18 @@ def test_distance_and_normal_keeps_the_leading_shape_and_a_direction_at_the_cent
     sd, n = Box(2.0, 1.0).distance_and_normal(np.array([[0.9, 0.1], [-0.1, -0.45]]), np.zeros(2))
     np.testing.assert_allclose(sd, [-0.1, -0.05])
     np.testing.assert_allclose(n, [[1.0, 0.0], [0.0, -1.0]])
+
+
+@pytest.mark.parametrize("shape, pts", [
+    (Ellipse(2.0, 1.0), [[3.0, 0.0], [-0.5, 0.0], [1.9, 0.0], [0.0, 0.0], [0.0, -2.0]]),
+    (Ellipsoid(1.5, 1.0, 0.5), [[2.0, 0.0, 0.0], [0.3, -0.2, 0.0], [1.4, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 1.5, 0.0]]),
+])
+def test_ellipse_normals_on_the_axes_point_from_the_nearest_boundary_point(shape, pts):
+    """The closed-form normal of the ellipse and ellipsoid on their axes and coordinate planes
+    (Eberly's special branches): unit, and the nearest boundary point lies sd back along it."""
+    pts = np.array(pts)
+    sd, n = shape.distance_and_normal(pts, np.zeros(shape.dim))
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
+    on = pts - sd[:, None] * n
+    np.testing.assert_allclose(shape.signed_distance(on, np.zeros(shape.dim)), 0.0, atol=1e-9)
+    np.testing.assert_allclose(np.abs(sd), np.linalg.norm(pts - on, axis=1), atol=1e-12)

@@ -76,11 +76,7 @@ class GuidancePlanner3D(PlannerBase):
         graph = GraphPath3D.from_reference(self.path, s0 - min(5.0, s0), s_end)
         pts = self.path.point_at(np.linspace(s0, s_end, 200))
         lo, hi = pts.min(axis=0), pts.max(axis=0)
-        obs = []
-        for o in statics:
-            imp = self.implicit(o)
-            if np.all(np.abs(np.clip(imp.center, lo, hi) - imp.center) <= imp.reach + 1.0):
-                obs.append(self.obstacle(imp))
+        obs = list(self.static_terms(statics, lo, hi, self.obstacle).values())
         if ends_path:
             self.check_clear(self.path.point_at(self.path.length), obs, 0.0, "goal")
         field = GuidanceField3D(path=graph, k_p=p.k_p, k_r=p.k_r, l1=p.l1, l2=p.l2, statics=obs)

@@ -158,3 +158,62 @@ def test_on_a_ring_the_tight_path_keeps_the_clearance_with_the_yawed_body():
     along = disc_gaps(plan.xy, flat, keep)[near]
     assert np.min(yawed) > -CLEAR_TOLERANCE - 0.03
     assert np.min(along) > np.min(yawed) + 0.05
+
+
+def _one_keepout_at_a_time(x, times, body, keepouts, slack, beyond, normals):
+    """The discs' distances keepout by keepout through ``Keepout.signed_distance`` and
+    ``distance_and_normal`` (the reference of the batched evaluation)."""
+    axes = body.axes(x)
+    discs = (x[None] + body.offsets[:, None, None] * axes[None]).reshape(-1, x.shape[1])
+    tiled = np.tile(times, len(body.offsets))
+    far = [float(np.max(np.abs(body.offsets))) + body.radius + k.clearance + beyond + k.obstacle.shape.bounding_radius()
+           for k in keepouts]
+    near = [np.linalg.norm(x - k.centres(times), axis=1) <= f for k, f in zip(keepouts, far)]
+    if not normals:
+        return near, [k.signed_distance(discs, tiled).reshape(len(body.offsets), -1) for k in keepouts]
+    out = [k.distance_and_normal(discs, tiled) for k in keepouts]
+    return near, [(sd.reshape(len(body.offsets), -1), g.reshape(len(body.offsets), len(x), -1)) for sd, g in out]
+
+
+def test_the_batched_disc_distances_are_those_of_one_keepout_at_a_time():
+    """disc_gaps and body_half_planes evaluate the keepouts of one shape together; their numbers
+    are those of the keepouts taken one by one (the most binding disc and keepout the first of
+    equals), for circles, boxes and ellipses, static and moving, in time shifts."""
+    from vflpcd.core.guidance.tighten import REACH, body_half_planes
+    from vflpcd.core.shapes import Ellipse
+    rng = np.random.default_rng(11)
+    x = np.column_stack([np.linspace(0.0, 40.0, 161), 0.8 * np.sin(np.linspace(0.0, 3.0, 161))])
+    times = np.linspace(0.0, 6.0, len(x))
+    body = Body(np.array([-1.2, 0.0, 1.2]), 1.0)
+    shapes = [Circle(0.3), Circle(0.3), Box(4.5, 1.9), Ellipse(1.2, 0.6), Circle(0.4), Box(4.5, 1.9)]
+    keepouts = []
+    for i, shape in enumerate(shapes):
+        moving = i % 2 == 1
+        o = ObstacleState(f"o{i}", shape, np.array([rng.uniform(3.0, 38.0), rng.uniform(-3.0, 3.0)]),
+                          float(rng.uniform(-1.0, 1.0)), rng.normal(size=2) if moving else np.zeros(2), 0.5)
+        for shift in ((-0.5, 0.0, 0.5) if moving else (0.0,)):
+            keepouts.append(Keepout(o, 0.3 + 0.1 * i, shift))
+    slack = np.maximum(rng.normal(0.0, 0.1, len(x)), 0.0)
+
+    near, sds = _one_keepout_at_a_time(x, times, body, keepouts, slack, 0.0, normals=False)
+    gaps = np.min([np.where(m, sd.min(axis=0) - body.radius - k.clearance, np.inf)
+                   for m, sd, k in zip(near, sds, keepouts)], axis=0)
+    assert np.isfinite(gaps).sum() > 40 and np.any(gaps < 0.0)
+    np.testing.assert_allclose(disc_gaps(x, body, keepouts, times), gaps, rtol=0.0, atol=1e-12)
+
+    near, pairs = _one_keepout_at_a_time(x, times, body, keepouts, slack, REACH, normals=True)
+    n_ref, b_ref, need = np.zeros_like(x), np.full(len(x), -np.inf), np.full(len(x), -np.inf)
+    for m, (sd, g), k in zip(near, pairs, keepouts):
+        want = body.radius + k.clearance - slack - sd
+        disc = np.argmax(want, axis=0)
+        w = want[disc, np.arange(len(x))]
+        take = m & (w > -REACH) & (w > need)
+        need[take] = w[take]
+        n_ref[take] = g[disc[take], np.flatnonzero(take)]
+        b_ref[take] = np.einsum("ij,ij->i", n_ref[take], x[take]) + w[take]
+    n, b = body_half_planes(x, times, body, keepouts, slack)
+    assert np.isfinite(b_ref).sum() > 40
+    np.testing.assert_array_equal(np.isfinite(b), np.isfinite(b_ref))
+    np.testing.assert_allclose(n, n_ref, rtol=0.0, atol=1e-12)
+    np.testing.assert_allclose(b[np.isfinite(b)], b_ref[np.isfinite(b_ref)], rtol=0.0, atol=1e-12)
+    assert disc_gaps(x, body, [], times).tolist() == [np.inf] * len(x)
