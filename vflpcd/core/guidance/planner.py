@@ -302,8 +302,7 @@ class PlannerBase:
                                p.tight_length, heading, goal, field_times, self._loops().active_set)
             if out is None:
                 return None
-            s_t, kappa, v_t = plan_speed(out[0], self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
-                                         v_end=0.0 if goal else None)
+            s_t, kappa, v_t = self.speed_plan(out[0], self.v_desired, v0, goal)
             trajectory = timed_trajectory(out[0], s_t, v_t, t0, self.dt)
             if not moving or (self.least_gap(trajectory, moving) >= floor and not self.touches_mover(movers, trajectory)):
                 return out[0], s_t, kappa, v_t
@@ -347,11 +346,17 @@ class PlannerBase:
             return None
         return replace(plan, trajectory=trajectory, xy=pts, s=s, kappa=kappa, v=v)
 
+    def speed_plan(self, xy: np.ndarray, v_max, v0: float, at_rest: bool, kappa_cap: float = np.inf):
+        """``plan_speed`` of the path xy up to v_max ((K,) or one number) from v0, ending at rest at the
+        goal with ``at_rest`` (decelerating at ``goal_decel``): (s, kappa, v)."""
+        p = self.params
+        return plan_speed(xy, v_max, self.a_lat_max, p.a_accel, p.a_decel, v0, v_end=0.0 if at_rest else None,
+                          kappa_cap=kappa_cap, a_end=p.goal_decel)
+
     def timed(self, xy: np.ndarray, v_max: float, v0: float, t0: float, at_rest: bool):
         """The path xy speed-planned up to v_max from v0 (ending at rest with ``at_rest``) and timed
         from t0: (s, kappa, v, trajectory)."""
-        p = self.params
-        s, kappa, v = plan_speed(xy, v_max, self.a_lat_max, p.a_accel, p.a_decel, v0, v_end=0.0 if at_rest else None)
+        s, kappa, v = self.speed_plan(xy, v_max, v0, at_rest)
         return s, kappa, v, timed_trajectory(xy, s, v, t0, self.dt)
 
     def meets_mover(self, movers, trajectory: Trajectory, slack: float = 0.0) -> bool:
@@ -556,8 +561,7 @@ class GuidancePlanner(PlannerBase):
         goal = prepared.ends_path and res.reached
         if fair:
             xy = self.faired(xy, field.statics + field.movers, t0, times, heading, pin_end=goal)
-        s, kappa, v = plan_speed(xy, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
-                                 v_end=0.0 if goal else None, kappa_cap=np.inf if fair else self.kappa_max)
+        s, kappa, v = self.speed_plan(xy, self.v_desired, v0, goal, kappa_cap=np.inf if fair else self.kappa_max)
         return res, xy, s, kappa, v
 
     def plan(self, prepared: Prepared, start: np.ndarray, t0: float, v0: float,
@@ -629,11 +633,9 @@ class GuidancePlanner(PlannerBase):
         near = [Keepout(o, self.tight_clearance(o)) for o in others]
         if near:                # slowed, it comes no closer to the others than the plan does (or their clearance)
             floor = min(0.0, self.least_gap(plan.trajectory, near)) - CLEAR_TOLERANCE
-        p = self.params
         for f in (1.0,) + FOLLOW_SPEEDS:
             cap = np.where(plan.s < entry, f * self.v_desired, self.v_desired)
-            s, kappa, v = plan_speed(plan.xy, cap, self.a_lat_max, p.a_accel, p.a_decel, v0,
-                                     v_end=0.0 if _stops(plan.v) else None)
+            s, kappa, v = self.speed_plan(plan.xy, cap, v0, _stops(plan.v))
             trajectory = timed_trajectory(plan.xy, s, v, t0, self.dt)
             if self.meets_mover(crossers, trajectory):
                 continue

@@ -22,7 +22,7 @@ from vflpcd.core.guidance.integrate_kernel import step_time
 from vflpcd.core.guidance.implicit import GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.planner import MOVER_PASSES, GuidancePlan, PlannerBase
 from vflpcd.core.guidance.primitives import cup_at
-from vflpcd.core.guidance.speed import plan_speed, step_times
+from vflpcd.core.guidance.speed import step_times
 from vflpcd.core.guidance.trajectory import timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
 
@@ -96,8 +96,7 @@ class GuidancePlanner3D(PlannerBase):
                 field, start, prepared.x_end, t0, max(v0, 0.5 * self.v_desired),
                 int(4 * (prepared.s_end - prepared.s0 + 20.0) / p.beta), steps)
             xyz = self.safe_smooth(raw, field.statics + field.movers, t0, steps, field.path)
-            s, kappa, v = plan_speed(xyz, self.v_desired, self.a_lat_max, p.a_accel, p.a_decel, v0,
-                                     v_end=0.0 if (prepared.ends_path and reached) else None)
+            s, kappa, v = self.speed_plan(xyz, self.v_desired, v0, prepared.ends_path and reached)
             steps = step_times(s, v, t0, p.beta)
         return GuidancePlan(trajectory=timed_trajectory(xyz, s, v, t0, self.dt), xy=xyz, s=s, kappa=kappa, v=v,
                             raw=raw, reached=reached, inherited=inherited, field=field, gammas=gammas)
