@@ -13,10 +13,12 @@ from vflpcd.config.scenarios import line_scenario_toml
 def write_mission(folder: Path, *, route: str | None = None, length: float = 200.0, rate_hz: float = 50.0,
                   executor: str = "thread", telemetry_port: int | None = None, hold: float = 1.5,
                   extra: str = "", platform_extra: str = "", compensation: bool = False,
-                  telemetry_extra: str = "", state_max_age: float = 0.25, sched_fifo: bool = True) -> Path:
+                  telemetry_extra: str = "", state_max_age: float = 0.5, sched_fifo: bool = True) -> Path:
     """A mission on a straight road of ``length`` m (or the named ``route``), in-process vehicle,
     VF-LPC; telemetry on ``telemetry_port`` (off without one); logs in folder/logs. ``state_max_age``:
-    0.25 s unless a test is about stale states (a test process shares two cores with the others).
+    0.5 s unless a test is about stale states: a test process shares two cores with the suite's
+    other workers, and at 0.25 s a loaded run's in-process vehicle went 273 ms without a state,
+    so that the stale-state failsafe came before the monitor the test was about.
     ``sched_fifo``: the control thread asks for SCHED_FIFO, as a vehicle's unit grants it, so that the
     suite's other workers, three on two cores, do not starve a real-time loop into the overrun and
     stall monitors (where it is not permitted the loop runs with normal scheduling and a warning)."""
