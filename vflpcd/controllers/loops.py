@@ -117,6 +117,16 @@ def half_planes_loop():
 
 
 @lru_cache(maxsize=1)
+def integrate3d_loop():
+    """``integrate3d_kernel.steps3d_loop`` (the 3-D guidance's steps of eq. (xi_r)) compiled and
+    loaded (``_warm_integrate3d``), or None without numba."""
+    from vflpcd.core.guidance.integrate3d_kernel import steps3d_loop
+
+    _scalars()
+    return _compiled("integrate3d", steps3d_loop, _warm_integrate3d)
+
+
+@lru_cache(maxsize=1)
 def guidance_loops():
     """The guidance planner's loops compiled and loaded (``GuidanceLoops``), or None without numba."""
     from vflpcd.core.guidance.planner import GuidanceLoops
@@ -124,7 +134,8 @@ def guidance_loops():
     active_set = active_set_loop()
     if active_set is None:
         return None
-    return GuidanceLoops(active_set=active_set, steps=integrate_loop(), half_planes=half_planes_loop())
+    return GuidanceLoops(active_set=active_set, steps=integrate_loop(), half_planes=half_planes_loop(),
+                         steps3d=integrate3d_loop())
 
 
 def compile_all() -> dict[str, bool]:
@@ -162,10 +173,12 @@ def _scalars() -> bool:
     except ImportError:
         return False
     from vflpcd.core.guidance.active_set_kernel import dual_step, half_plane_gap, normal_dot
+    from vflpcd.core.guidance.integrate3d_kernel import _interval, _repulsive_unit, _unit3, piece_at
     from vflpcd.core.guidance.integrate_kernel import step_time
-    from vflpcd.core.guidance.primitives import cup_at, guiding_at, row_centre, superellipse_at
+    from vflpcd.core.guidance.primitives import cup_at, guiding_at, row_centre, superellipse_at, superellipsoid_at
 
-    for fn in (superellipse_at, row_centre, step_time, cup_at, guiding_at, dual_step, half_plane_gap, normal_dot):
+    for fn in (superellipse_at, row_centre, step_time, cup_at, guiding_at, dual_step, half_plane_gap, normal_dot,
+               superellipsoid_at, piece_at, _interval, _repulsive_unit, _unit3):
         register_jitable(fn)
     return True
 
@@ -275,6 +288,16 @@ def _warm_active_set(loop) -> None:
 
     loop(np.eye(1, 4), np.zeros(4), np.zeros((2, 2)), np.zeros(2), np.zeros(2, bool), np.zeros(2, bool),
          np.zeros(4), 1, 1.0, 1e-6, 1e-13)
+
+
+def _warm_integrate3d(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``GuidancePlanner3D._integrate`` passes."""
+    import numpy as np
+
+    z = np.zeros
+    frame = np.concatenate([z(3), np.eye(3).ravel()])
+    params = np.array([1.0, 3.0, 0.05, 0.05, 1e-3, 0.1, 1.0, 2.0, 0.0, 1.0, 0.0, 1.0, -0.3, 0.0])
+    loop(z(3), z((3, 3)), z((0, 20)), z(0), frame, np.array([0.0, 1.0]), z((4, 1, 4)), params, z(0), z(2, np.int64))
 
 
 def _warm_integrate(loop) -> None:

@@ -17,8 +17,6 @@ blend them: chi = (prod_i cup_Q_i) chi_P^ + sum_i cap_R_i chi_R_i^.
 
 from __future__ import annotations
 
-import bisect
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -44,10 +42,11 @@ class GraphPath3D:
         self.f, self.g = CubicSpline(xs, ys, bc_type="natural"), CubicSpline(xs, zs, bc_type="natural")
         self.df, self.dg = self.f.derivative(), self.g.derivative()
         self.x0, self.x1 = float(xs[0]), float(xs[-1])
-        # per-point evaluation in plain floats (``value_grad_at``): breakpoints and the pieces'
-        # coefficients of f, f', g, g' as lists
-        self._knots = self.f.x.tolist()
-        self._pieces = [sp.c.T.tolist() for sp in (self.f, self.df, self.g, self.dg)]
+        # the compiled steps' form (``integrate3d_kernel``): the breakpoints (m,) and the pieces'
+        # coefficients of f, f', g, g', highest power first, (4, m - 1, 4) (the derivatives' led by 0)
+        self.knots = np.ascontiguousarray(self.f.x, dtype=float)
+        self.pieces = np.stack([np.vstack([np.zeros((4 - len(sp.c), sp.c.shape[1])), sp.c]).T
+                                for sp in (self.f, self.df, self.g, self.dg)])
 
     @classmethod
     def from_reference(cls, path: ReferencePath, s0: float, s1: float, spacing: float = 1.0) -> "GraphPath3D":
@@ -69,24 +68,6 @@ class GraphPath3D:
         g1 = np.column_stack([-df, one, zero]) @ self.R.T
         g2 = np.column_stack([-dg, zero, one]) @ self.R.T
         return q[:, 1] - f, q[:, 2] - g, g1, g2
-
-    def value_grad_at(self, x: float, y: float, z: float):
-        """``value_grad`` at one point in plain floats: (phi_1, phi_2, grad phi_1 (3,), grad phi_2 (3,)) as
-        floats and tuples; the splines by Horner's rule on their pieces, as scipy's PPoly evaluates them."""
-        R = self.R
-        px, py, pz = x - self.origin[0], y - self.origin[1], z - self.origin[2]
-        qx = px * R[0, 0] + py * R[1, 0] + pz * R[2, 0]
-        qy = px * R[0, 1] + py * R[1, 1] + pz * R[2, 1]
-        qz = px * R[0, 2] + py * R[1, 2] + pz * R[2, 2]
-        xc = min(max(qx, self.x0), self.x1)
-        i = min(max(bisect.bisect_right(self._knots, xc) - 1, 0), len(self._knots) - 2)
-        h = xc - self._knots[i]
-        f, df, g, dg = (_horner(pieces[i], h) for pieces in self._pieces)
-        f, g = f + df * (qx - xc), g + dg * (qx - xc)
-        # grad phi_1 = R [-f', 1, 0], grad phi_2 = R [-g', 0, 1]
-        g1 = (-df * R[0, 0] + R[0, 1], -df * R[1, 0] + R[1, 1], -df * R[2, 0] + R[2, 1])
-        g2 = (-dg * R[0, 0] + R[0, 2], -dg * R[1, 0] + R[1, 2], -dg * R[2, 0] + R[2, 2])
-        return qy - f, qz - g, g1, g2
 
     def progress_frame(self) -> tuple[np.ndarray, np.ndarray]:
         return self.origin, self.R[:, 0]
@@ -142,21 +123,6 @@ class GuidanceField3D:
         chi = np.cross(g1, g2) - self.k_p * p1[:, None] * g1 - self.k_p * p2[:, None] * g2
         return unit(chi)[0]
 
-    def path_unit_at(self, x: float, y: float, z: float) -> tuple[float, float, float]:
-        """``path_unit`` at one point in plain floats."""
-        p1, p2, g1, g2 = self.path.value_grad_at(x, y, z)
-        k = self.k_p
-        return _unit3(_cross3(g1, g2), (-k * p1 * g1[0] - k * p2 * g2[0], -k * p1 * g1[1] - k * p2 * g2[1],
-                                        -k * p1 * g1[2] - k * p2 * g2[2]))
-
-    def repulsive_unit_at(self, ob: Obstacle3D, gamma: float, x: float, y: float, z: float, t: float = 0.0):
-        """``repulsive_unit`` at one point in plain floats: (varphi, chi_R_i^ as a tuple)."""
-        phi, gx, gy, gz = ob.implicit.value_grad_at_3d(x, y, z, t)
-        m = ob.normal
-        cx, cy, cz = _cross3((gx, gy, gz), (m[0], m[1], m[2]))
-        k = self.k_r * phi
-        return phi, _unit3((gamma * cx, gamma * cy, gamma * cz), (-k * gx, -k * gy, -k * gz))
-
     def repulsive_unit(self, ob: Obstacle3D, gamma: float, pts: np.ndarray, t: float = 0.0):
         """(varphi (N,), chi_R_i^ (N, 3)) with direction gamma."""
         phi, g = ob.implicit.value_grad(pts, t)
@@ -173,22 +139,3 @@ class GuidanceField3D:
             P *= cup
             V += cap[:, None] * chi
         return P[:, None] * self.path_unit(pts) + V
-
-
-def _horner(c, h: float) -> float:
-    """A polynomial piece with coefficients c (highest power first) at h, by Horner's rule."""
-    out = 0.0
-    for a in c:
-        out = out * h + a
-    return out
-
-
-def _cross3(a, b) -> tuple[float, float, float]:
-    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
-
-
-def _unit3(a, b) -> tuple[float, float, float]:
-    """(a + b) / |a + b| for 3-vectors as tuples; the zero vector stays zero."""
-    x, y, z = a[0] + b[0], a[1] + b[1], a[2] + b[2]
-    n = math.sqrt(x * x + y * y + z * z)
-    return (x / n, y / n, z / n) if n > 0.0 else (0.0, 0.0, 0.0)

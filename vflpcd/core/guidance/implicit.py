@@ -27,7 +27,6 @@ shape's exact signed distance).
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -336,24 +335,12 @@ class ObstacleImplicit:
         return [self.center[0], self.center[1], self.velocity[0], self.velocity[1], self.stamp, self.reach ** 2,
                 self.Rz[0, 0], self.Rz[1, 0], self.axes[0], self.axes[1], self.p, self.c]
 
-    def value_grad_at_3d(self, x: float, y: float, z: float, t: float = 0.0) -> tuple[float, float, float, float]:
-        """``value_grad`` at one 3-D point in plain floats: (varphi, its gradient's x, y, z)."""
-        dt = t - self.stamp
-        dx, dy = x - (self.center[0] + self.velocity[0] * dt), y - (self.center[1] + self.velocity[1] * dt)
-        c, s = self.Rz[0, 0], self.Rz[1, 0]
-        a0, a1, a2 = self.axes[0], self.axes[1], self.axes[2]
-        z0, z1 = (dx * c + dy * s) / a0, (-dx * s + dy * c) / a1
-        z2 = (z - (self.center[2] + self.velocity[2] * dt)) / a2
-        p, q = self.p, self.q
-        b0, b1, b2 = abs(z0), abs(z1), abs(z2)
-        S = b0 ** p + b1 ** p
-        T = S ** (q / p) + b2 ** q
-        tq = max(T, 1e-300) ** (1.0 / q - 1.0)
-        sq = max(S, 1e-300) ** (q / p - 1.0)
-        h0 = tq * sq * math.copysign(b0 ** (p - 1.0), z0) / a0 if z0 != 0.0 else 0.0
-        h1 = tq * sq * math.copysign(b1 ** (p - 1.0), z1) / a1 if z1 != 0.0 else 0.0
-        h2 = tq * math.copysign(b2 ** (q - 1.0), z2) / a2 if z2 != 0.0 else 0.0
-        return T ** (1.0 / q) - 1.0, h0 * c - h1 * s, h0 * s + h1 * c, h2
+    def row3d(self) -> list[float]:
+        """A 3-D obstacle in the compiled 3-D steps' layout (``integrate3d_kernel``): centre x, y, z
+        at the stamp, velocity x, y, z, stamp, squared reach, cos and sin of the yaw, the three
+        axes, p, q and c."""
+        return [*self.center.tolist(), *self.velocity.tolist(), self.stamp, self.reach ** 2, self.Rz[0, 0],
+                self.Rz[1, 0], *self.axes.tolist(), self.p, self.q, self.c]
 
 
 @functools.lru_cache(maxsize=1024)

@@ -105,11 +105,13 @@ class GuidancePlan:
 class GuidanceLoops:
     """The guidance's loops compiled (``vflpcd.controllers.loops.guidance_loops``), None each where
     its numpy path runs: the fairing's and tight path's active set (``active_set_kernel``), the
-    steps of eq. (xi_r) (``integrate_kernel``) and the fairing's half-planes (``half_plane_kernel``)."""
+    steps of eq. (xi_r) (``integrate_kernel``), the fairing's half-planes (``half_plane_kernel``)
+    and the 3-D steps (``integrate3d_kernel``, run interpreted where None)."""
 
     active_set: Callable | None = None
     steps: Callable | None = None
     half_planes: Callable | None = None
+    steps3d: Callable | None = None
 
 
 class PlannerBase:

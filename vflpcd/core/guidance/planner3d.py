@@ -10,7 +10,6 @@ planar construction and are not used in 3-D; the centripetal limit is met by spe
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from typing import Sequence
 
@@ -18,10 +17,9 @@ import numpy as np
 
 from vflpcd.core.guidance.field3d import GraphPath3D, GuidanceField3D, Obstacle3D
 from vflpcd.core.guidance.grid import BACKWARDS
-from vflpcd.core.guidance.integrate_kernel import step_time
+from vflpcd.core.guidance.integrate3d_kernel import REACHED, VANISHED, steps3d_loop
 from vflpcd.core.guidance.implicit import GuidanceError, ObstacleImplicit, graph_horizon
 from vflpcd.core.guidance.planner import MOVER_PASSES, GuidancePlan, PlannerBase
-from vflpcd.core.guidance.primitives import cup_at
 from vflpcd.core.guidance.speed import step_times
 from vflpcd.core.guidance.trajectory import timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
@@ -103,49 +101,23 @@ class GuidancePlanner3D(PlannerBase):
 
     def _integrate(self, field: GuidanceField3D, start: np.ndarray, x_end: float, t0: float, speed: float,
                    max_steps: int, step_times: np.ndarray | None):
-        """Eq. (xi_r) with the field evaluated at each point: (points (K, 3), reached, inherited, gammas)."""
+        """Eq. (xi_r) with the field evaluated at each point (``integrate3d_kernel.steps3d_loop``,
+        compiled where the planner's loops are): (points (K, 3), reached, inherited, gammas)."""
         p = self.params
         obstacles = field.statics + field.movers
-        gammas: list[float | None] = [None] * len(obstacles)
-        po, pd = field.path.progress_frame()
-        if step_times is not None:
-            step_times = step_times.tolist()      # plain floats, indexed every step
-        x, y, z = (float(v) for v in start)
-        pts, prev, inherited = [(x, y, z)], None, 0
-        # per obstacle, in plain floats: its centre at its stamp, velocity, stamp, squared reach
-        placed = [(ob, *ob.implicit.center.tolist(), *ob.implicit.velocity.tolist(), ob.implicit.stamp,
-                   ob.implicit.reach ** 2) for ob in obstacles]
-        for k in range(max_steps):
-            t = step_time(k, t0, p.beta, speed, step_times)
-            P, Vx, Vy, Vz = 1.0, 0.0, 0.0, 0.0
-            for n, (ob, cx, cy, cz, vx, vy, vz, stamp, reach2) in enumerate(placed):
-                dt = t - stamp
-                if (x - cx - vx * dt) ** 2 + (y - cy - vy * dt) ** 2 + (z - cz - vz * dt) ** 2 > reach2:
-                    continue
-                if gammas[n] is None:
-                    phi0, chi0 = field.repulsive_unit_at(ob, ob.gamma, x, y, z, t)
-                    if phi0 >= 0.0:
-                        continue
-                    tangent = field.path.tangent(np.array([x, y, z]))      # first entry: keep unless backwards
-                    along = chi0[0] * tangent[0] + chi0[1] * tangent[1] + chi0[2] * tangent[2]
-                    gammas[n] = -ob.gamma if along < BACKWARDS else ob.gamma
-                phi, chi = field.repulsive_unit_at(ob, gammas[n], x, y, z, t)
-                cup = cup_at(phi, ob.implicit.c, field.l1, field.l2)
-                P *= cup
-                Vx, Vy, Vz = Vx + (1.0 - cup) * chi[0], Vy + (1.0 - cup) * chi[1], Vz + (1.0 - cup) * chi[2]
-            ux, uy, uz = field.path_unit_at(x, y, z)
-            cx_, cy_, cz_ = P * ux + Vx, P * uy + Vy, P * uz + Vz
-            norm = math.sqrt(cx_ * cx_ + cy_ * cy_ + cz_ * cz_)
-            if norm < p.epsilon:  # the paper's rule at singular points
-                if prev is None:
-                    raise GuidanceError(f"the field vanishes at the start {[round(x, 2), round(y, 2), round(z, 2)]} "
-                                        "and there is no heading to inherit")
-                u, inherited = prev, inherited + 1
-            else:
-                u = (cx_ / norm, cy_ / norm, cz_ / norm)
-                prev = u
-            x, y, z = x + p.beta * u[0], y + p.beta * u[1], z + p.beta * u[2]
-            pts.append((x, y, z))
-            if (x - po[0]) * pd[0] + (y - po[1]) * pd[1] + (z - po[2]) * pd[2] >= x_end:
-                return np.asarray(pts), True, inherited, tuple(gammas)
-        return np.asarray(pts), False, inherited, tuple(gammas)
+        rows = np.array([ob.implicit.row3d() + [ob.gamma, *np.asarray(ob.normal, float).tolist()] for ob in obstacles],
+                        dtype=float).reshape(-1, 20)
+        gammas = np.zeros(len(obstacles))
+        path = field.path
+        frame = np.concatenate([path.origin, path.R.ravel()])
+        params = np.array([field.k_p, field.k_r, field.l1, field.l2, p.epsilon, p.beta, x_end, max_steps, t0, speed,
+                           path.x0, path.x1, BACKWARDS, 0.0])
+        xyz, out = np.empty((max_steps + 1, 3)), np.zeros(2, dtype=np.int64)
+        loop = self._loops().steps3d or steps3d_loop
+        code = loop(np.asarray(start, float), xyz, rows, gammas, frame, path.knots, path.pieces, params,
+                    np.zeros(0) if step_times is None else np.ascontiguousarray(step_times, dtype=float), out)
+        if code == VANISHED:
+            raise GuidanceError(f"the field vanishes at the start {np.round(start, 2).tolist()} "
+                                "and there is no heading to inherit")
+        return (xyz[:out[0]].copy(), code == REACHED, int(out[1]),
+                tuple(None if g == 0.0 else float(g) for g in gammas))

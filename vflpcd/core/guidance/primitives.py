@@ -64,6 +64,25 @@ def superellipse_at(x, y, cx, cy, c, s, ax0, ax1, p):
     return S ** (1.0 / p) - 1.0, hx * c - hy * s, hx * s + hy * c
 
 
+def superellipsoid_at(x, y, z, cx, cy, cz, c, s, a0, a1, a2, p, q):
+    """(varphi, its gradient's x, y, z) of the superellipsoid centred at (cx, cy, cz), yaw (cos c,
+    sin s) about z, axes a0, a1, a2, exponents p (horizontal) and q, at (x, y, z):
+    ``ObstacleImplicit.value_grad`` at one 3-D point in plain floats (the 3-D steps,
+    ``integrate3d_kernel``)."""
+    dx, dy = x - cx, y - cy
+    z0, z1 = (dx * c + dy * s) / a0, (-dx * s + dy * c) / a1
+    z2 = (z - cz) / a2
+    b0, b1, b2 = abs(z0), abs(z1), abs(z2)
+    S = b0 ** p + b1 ** p
+    T = S ** (q / p) + b2 ** q
+    tq = max(T, 1e-300) ** (1.0 / q - 1.0)
+    sq = max(S, 1e-300) ** (q / p - 1.0)
+    h0 = tq * sq * math.copysign(b0 ** (p - 1.0), z0) / a0 if z0 != 0.0 else 0.0
+    h1 = tq * sq * math.copysign(b1 ** (p - 1.0), z1) / a1 if z1 != 0.0 else 0.0
+    h2 = tq * math.copysign(b2 ** (q - 1.0), z2) / a2 if z2 != 0.0 else 0.0
+    return T ** (1.0 / q) - 1.0, h0 * c - h1 * s, h0 * s + h1 * c, h2
+
+
 def row_centre(rows, i: int, t: float) -> tuple[float, float]:
     """The centre at time t of obstacle i of ``rows`` (each an ``ObstacleImplicit.row``)."""
     return rows[i, 0] + rows[i, 2] * (t - rows[i, 4]), rows[i, 1] + rows[i, 3] * (t - rows[i, 4])

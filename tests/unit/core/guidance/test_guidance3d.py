@@ -6,7 +6,11 @@ import pytest
 from vflpcd.core.obstacle_world import ObstacleWorld
 from vflpcd.config.scenarios import load_scenario
 from vflpcd.core.guidance.field3d import GraphPath3D
+from vflpcd.core.guidance.grid import BACKWARDS
+from vflpcd.core.guidance.integrate_kernel import step_time
+from vflpcd.core.guidance.planner import GuidanceLoops
 from vflpcd.core.guidance.planner3d import GuidancePlanner3D
+from vflpcd.core.guidance.primitives import bump
 from vflpcd.core.guidance.speed import menger_curvature
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
@@ -113,24 +117,68 @@ def test_uav_3d_scenario_plan_keeps_clear_of_every_obstacle(uav):
         assert min(gaps) - uav.footprint.radius > 0.3, o.id
 
 
-def test_the_per_point_field_in_plain_floats_is_the_vectorised_one(uav):
-    """path_unit_at and repulsive_unit_at (the integration's per-step forms: splines by Horner's
-    rule, superquadrics in floats) against path_unit and repulsive_unit, on and off the path, beyond
-    the spline's ends (its linear extension), for a moving box, cylinder and ellipsoid."""
+def _reference_steps(field, obstacles, start, x_end, beta, epsilon, max_steps, t0, speed, times):
+    """Eq. (xi_r) in 3-D step by step on the vectorised field (path_unit, repulsive_unit, bump),
+    with the integration's rules: the reach test, gamma_i decided at first entry against the
+    path's tangent, the near-zero rule."""
+    gammas, x, pts, prev = [None] * len(obstacles), np.asarray(start, float), [np.asarray(start, float)], None
+    for k in range(max_steps):
+        t = step_time(k, t0, beta, speed, times)
+        P, V = 1.0, np.zeros(3)
+        for n, ob in enumerate(obstacles):
+            o = ob.implicit
+            if np.sum((x - (o.center + o.velocity * (t - o.stamp))) ** 2) > o.reach ** 2:
+                continue
+            if gammas[n] is None:
+                phi0, chi0 = field.repulsive_unit(ob, ob.gamma, x[None], t)
+                if phi0[0] >= 0.0:
+                    continue
+                gammas[n] = -ob.gamma if chi0[0] @ field.path.tangent(x) < BACKWARDS else ob.gamma
+            phi, chi = field.repulsive_unit(ob, gammas[n], x[None], t)
+            cup = bump(phi, o.c, field.l1, field.l2)[0][0]
+            P, V = P * cup, V + (1.0 - cup) * chi[0]
+        c = P * field.path_unit(x[None])[0] + V
+        if np.linalg.norm(c) < epsilon:
+            u = prev
+        else:
+            u = prev = c / np.linalg.norm(c)
+        x = x + beta * u
+        pts.append(x)
+        if (x - field.path.origin) @ field.path.R[:, 0] >= x_end:
+            return np.array(pts), gammas
+    return np.array(pts), gammas
+
+
+def test_the_3d_steps_are_the_vectorised_field_stepped(uav):
+    """The 3-D steps of eq. (xi_r) (``integrate3d_kernel``), compiled and run as Python, give the
+    same points as the vectorised field stepped point by point, past a static box, a moving
+    cylinder and a moving ellipsoid (each gamma_i decided at first entry), with and without step
+    times, and the gammas decided."""
+    from vflpcd.controllers.loops import integrate3d_loop
+    from vflpcd.core.guidance.integrate3d_kernel import steps3d_loop
+
     planner = GuidancePlanner3D(uav.path, uav.guidance, 1.0, 2.0, 0.3, 0.02)
     shapes = (Box3(1.0, 2.0, 1.5), Cylinder(0.8, 2.0), Ellipsoid(1.0, 0.6, 0.8))
-    movers = [ObstacleState(f"o{k}", sh, uav.path.point_at(8.0 + 7.0 * k), 0.4 * k, np.array([0.3, -0.2, 0.1]), 0.5)
-              for k, sh in enumerate(shapes)]
-    field = planner.prepare(0.0, []).field
-    rng = np.random.default_rng(4)
-    pts = uav.path.point_at(rng.uniform(0.0, uav.path.length, 200)) + rng.normal(0.0, 2.0, (200, 3))
-    pts = np.vstack([pts, field.path.origin + np.array([[-20.0, 1.0, 1.0], [80.0, -1.0, 2.0]]) @ field.path.R.T])
-    for p in pts:
-        np.testing.assert_allclose(field.path_unit_at(*p), field.path_unit(p[None])[0], atol=1e-13)
-    for o in movers:
-        ob = planner.obstacle(planner.implicit(o), 0.0)
-        for p in pts[:60] * 0.2 + 0.8 * ob.implicit.center:
-            phi, chi = field.repulsive_unit(ob, ob.gamma, p[None], 1.3)
-            phi_at, chi_at = field.repulsive_unit_at(ob, ob.gamma, *p, 1.3)
-            assert abs(phi_at - phi[0]) <= 1e-13 * max(1.0, abs(phi[0]))
-            np.testing.assert_allclose(chi_at, chi[0], atol=1e-12)
+    obstacles = [ObstacleState(f"o{k}", sh, uav.path.point_at(8.0 + 7.0 * k) + np.array([0.3, -0.2, 0.1]), 0.4 * k,
+                               np.array([0.3, -0.2, 0.1]) * (k > 0), 0.5) for k, sh in enumerate(shapes)]
+    prepared = planner.prepare(0.0, obstacles[:1])
+    field = prepared.field
+    field.movers = [planner.obstacle(planner.implicit(o), 0.0) for o in obstacles[1:]]
+    terms = field.statics + field.movers
+    start = uav.path.point_at(0.0) + np.array([0.0, 0.4, -0.2])
+    compiled = integrate3d_loop()
+    assert compiled is not None
+    entered = 0
+    for times in (None, 0.2 + 0.1 * np.arange(150)):
+        ref, gammas = _reference_steps(field, terms, start, prepared.x_end, planner.params.beta,
+                                       planner.params.epsilon, 400, 0.2, 1.0, times)
+        out = {}
+        for name, loop in (("compiled", compiled), ("python", steps3d_loop)):
+            planner._loops = lambda loop=loop: GuidanceLoops(steps3d=loop)
+            out[name] = planner._integrate(field, start, prepared.x_end, 0.2, 1.0, 400, times)
+        np.testing.assert_array_equal(out["compiled"][0], out["python"][0])
+        xyz, reached, _, decided = out["compiled"]
+        assert reached and decided == out["python"][3] == tuple(gammas)
+        np.testing.assert_allclose(xyz, ref, rtol=0.0, atol=1e-9)
+        entered += sum(g is not None for g in decided)
+    assert entered >= 4
