@@ -94,6 +94,27 @@ def test_the_path_loop_is_compiled_once_and_warmed_for_the_types_the_path_passes
 
 
 
+
+def test_the_3d_steps_are_warmed_for_the_types_the_3d_planner_passes():
+    """A quadrotor run's replans add no signature to the warmed 3-D steps: a worker that loads
+    them from the cache compiles nothing at its first replan (a second signature, for the spline
+    pieces in another memory layout, compiled for seconds beside a real-time loop)."""
+    import dataclasses
+
+    from sim.runner import run_closed_loop
+    from vflpcd.config.scenarios import load_scenario
+    from vflpcd.controllers import make_controller
+
+    loop = loops.integrate3d_loop()
+    assert loop is not None and loops.guidance_loops().steps3d is loop
+    before = len(loop.signatures)
+    assert before == 1
+    scenario = dataclasses.replace(load_scenario("uav_3d"), t_max=17.0)
+    ctrl = make_controller("vflpc", scenario)
+    record = run_closed_loop(scenario, ctrl, 0)
+    assert record.t_background.max() > 0.0                    # a replan ran
+    assert len(loop.signatures) == before
+
 WORKER = """
 import pickle, sys, time
 planner = pickle.load(open(sys.argv[1], "rb"))

@@ -45,8 +45,8 @@ class GraphPath3D:
         # the compiled steps' form (``integrate3d_kernel``): the breakpoints (m,) and the pieces'
         # coefficients of f, f', g, g', highest power first, (4, m - 1, 4) (the derivatives' led by 0)
         self.knots = np.ascontiguousarray(self.f.x, dtype=float)
-        self.pieces = np.stack([np.vstack([np.zeros((4 - len(sp.c), sp.c.shape[1])), sp.c]).T
-                                for sp in (self.f, self.df, self.g, self.dg)])
+        self.pieces = np.ascontiguousarray(np.stack([np.vstack([np.zeros((4 - len(sp.c), sp.c.shape[1])), sp.c]).T
+                                                     for sp in (self.f, self.df, self.g, self.dg)]))
 
     @classmethod
     def from_reference(cls, path: ReferencePath, s0: float, s1: float, spacing: float = 1.0) -> "GraphPath3D":
