@@ -114,8 +114,9 @@ class GuidancePlanner3D(PlannerBase):
                            path.x0, path.x1, BACKWARDS, 0.0])
         xyz, out = np.empty((max_steps + 1, 3)), np.zeros(2, dtype=np.int64)
         loop = self._loops().steps3d or steps3d_loop
-        code = loop(np.asarray(start, float), xyz, rows, gammas, frame, path.knots, path.pieces, params,
-                    np.zeros(0) if step_times is None else np.ascontiguousarray(step_times, dtype=float), out)
+        times = np.zeros(0) if step_times is None else np.ascontiguousarray(step_times, dtype=float)
+        code = loop(np.ascontiguousarray(start, dtype=float), xyz, rows, gammas, frame, path.knots, path.pieces,
+                    params, times, out)
         if code == VANISHED:
             raise GuidanceError(f"the field vanishes at the start {np.round(start, 2).tolist()} "
                                 "and there is no heading to inherit")
