@@ -48,5 +48,4 @@ class GuidanceParams:
     tight_length: float = 0.0
     tight_margin: float = 0.4
     tight_mover_window: float = 0.0
-    goal_decel: float = 2.5
     virtual_obstacles: tuple[VirtualObstacleSpec, ...] = ()

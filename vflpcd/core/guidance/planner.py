@@ -350,10 +350,10 @@ class PlannerBase:
 
     def speed_plan(self, xy: np.ndarray, v_max, v0: float, at_rest: bool, kappa_cap: float = np.inf):
         """``plan_speed`` of the path xy up to v_max ((K,) or one number) from v0, ending at rest at the
-        goal with ``at_rest`` (decelerating at ``goal_decel``): (s, kappa, v)."""
+        goal with ``at_rest``: (s, kappa, v)."""
         p = self.params
         return plan_speed(xy, v_max, self.a_lat_max, p.a_accel, p.a_decel, v0, v_end=0.0 if at_rest else None,
-                          kappa_cap=kappa_cap, a_end=p.goal_decel)
+                          kappa_cap=kappa_cap)
 
     def timed(self, xy: np.ndarray, v_max: float, v0: float, t0: float, at_rest: bool):
         """The path xy speed-planned up to v_max from v0 (ending at rest with ``at_rest``) and timed

@@ -68,15 +68,13 @@ def heading_curvature(xy: np.ndarray, window: float = CURVATURE_WINDOW) -> np.nd
 
 def plan_speed(xy: np.ndarray, v_desired: float, a_lat_max: float, a_accel: float, a_decel: float,
                v_start: float, v_end: float | None = None,
-               kappa_cap: float = np.inf, a_end: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               kappa_cap: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Speed profile for the path xy (K, d): returns (s (K,), kappa (K,), v (K,)).
 
     kappa is the largest Menger curvature of each point and its two neighbours (a
     conservative estimate); v_start is the robot's speed (the profile starts no faster),
-    v_end the speed required at the last point (None: free), reached decelerating at most
-    ``a_end`` (default a_decel) from the point where the profile starts to slow for it.
-    ``kappa_cap``: the curvature the centripetal limit takes at most (a path that its fairing will
-    bring within it).
+    v_end the speed required at the last point (None: free). ``kappa_cap``: the curvature the
+    centripetal limit takes at most (a path that its fairing will bring within it).
     """
     s = arc_lengths(xy)
     k = menger_curvature(xy)
@@ -90,8 +88,6 @@ def plan_speed(xy: np.ndarray, v_desired: float, a_lat_max: float, a_accel: floa
     w[1:] = np.minimum(w[1:], np.minimum.accumulate(w[:-1] - up[:-1]) + up[1:])
     if v_end is not None:
         w[-1] = min(w[-1], v_end * v_end)
-        if a_end is not None:      # the approach to v_end at a_end: w_k <= w_K + 2 a_end (s_K - s_k)
-            w = np.minimum(w, w[-1] + 2.0 * a_end * (s[-1] - s))
     down = 2.0 * a_decel * s       # backward: w_k = min(w_k, min_{j>k} w_j + 2 a_dec (s_j - s_k))
     w[:-1] = np.minimum(w[:-1], np.minimum.accumulate((w[1:] + down[1:])[::-1])[::-1] - down[:-1])
     return s, kappa, np.sqrt(w)

@@ -443,16 +443,3 @@ def test_a_late_pass_of_a_slow_car_keeps_the_body_out_of_it(params):
     assert planner.least_gap(plan.trajectory, [Keepout(slow, 0.0)]) > 0.3
     assert not planner.touches_mover([slow], plan.trajectory)
 
-
-def test_the_stop_at_the_goal_decelerates_at_the_goal_deceleration():
-    """plan_speed's a_end: the approach to v_end at the end brakes at most a_end, the rest of the
-    profile keeps a_decel; without a_end the stop brakes at a_decel."""
-    xy = np.column_stack([np.linspace(0.0, 60.0, 601), np.zeros(601)])
-    for a_end, a_stop in ((None, 2.5), (1.0, 1.0)):
-        s, _, v = plan_speed(xy, 7.0, 3.0, 1.5, 2.5, 7.0, v_end=0.0, a_end=a_end)
-        assert v[-1] == 0.0 and v[0] == pytest.approx(7.0)
-        decel = -np.diff(v ** 2) / (2.0 * np.diff(s))
-        assert decel.max() == pytest.approx(a_stop, rel=1e-9)
-        assert s[-1] - s[np.argmax(v < 7.0 - 1e-9)] == pytest.approx(49.0 / (2.0 * a_stop), abs=0.11)
-    s, _, v = plan_speed(xy, 7.0, 3.0, 1.5, 2.5, 7.0, v_end=None, a_end=1.0)
-    assert np.all(v == 7.0)
