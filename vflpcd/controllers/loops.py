@@ -296,7 +296,7 @@ def _warm_integrate3d(loop) -> None:
 
     z = np.zeros
     frame = np.concatenate([z(3), np.eye(3).ravel()])
-    params = np.array([1.0, 3.0, 0.05, 0.05, 1e-3, 0.1, 1.0, 2.0, 0.0, 1.0, 0.0, 1.0, -0.3, 0.0])
+    params = np.array([1.0, 3.0, 0.05, 0.05, 1e-3, 0.1, 1.0, 2.0, 0.0, 1.0, 0.0, 1.0, -0.3])
     loop(z(3), z((3, 3)), z((0, 20)), z(0), frame, np.array([0.0, 1.0]), z((4, 1, 4)), params, z(0), z(2, np.int64))
 
 

@@ -10,15 +10,15 @@ gamma, flipped when its circulation runs against the path's tangent (cos < ``bac
 Arrays, all float64:
 
 - ``start`` (3,); ``xyz`` (max_steps + 1, 3): xyz[0] the start, step k writes xyz[k + 1];
-- ``obstacles`` (O, 20): per obstacle its centre x, y, z at the stamp, velocity x, y, z, stamp,
-  squared reach, cos and sin of the yaw, axes a0, a1, a2, p, q, c, the side rule's gamma and the
-  detour plane's normal m x, y, z (``obstacle_row``); ``gammas`` (O,): the decided gamma_i, 0.0
-  while undecided (written);
+- ``obstacles`` (O, 20): per obstacle its ``ObstacleImplicit.row3d`` (centre x, y, z at the stamp,
+  velocity x, y, z, stamp, squared reach, cos and sin of the yaw, axes a0, a1, a2, p, q, c), the
+  side rule's gamma and the detour plane's normal m x, y, z; ``gammas`` (O,): the decided gamma_i,
+  0.0 while undecided (written);
 - ``frame`` (12,): the graph path's origin and its rotation R (row-major); ``knots`` (m,) and
   ``pieces`` (4, m - 1, 4): the breakpoints and the coefficients (highest power first) of f, f', g,
   g' (``GraphPath3D``);
-- ``params`` (14,): k_p, k_r, l1, l2, epsilon, beta, x_end, max_steps, t0, speed, the path's
-  abscissa limits x0, x1, backwards, and 0.0; ``step_times`` (T,) (T = 0: none);
+- ``params`` (13,): k_p, k_r, l1, l2, epsilon, beta, x_end, max_steps, t0, speed, the path's
+  abscissa limits x0, x1, and backwards; ``step_times`` (T,) (T = 0: none);
 - ``out`` (2,): the points written (steps + 1) and the inherited steps.
 
 Returns ``REACHED``, ``OUT_OF_STEPS`` or ``VANISHED`` (the field vanished at the start with no

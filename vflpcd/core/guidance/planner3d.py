@@ -111,7 +111,7 @@ class GuidancePlanner3D(PlannerBase):
         path = field.path
         frame = np.concatenate([path.origin, path.R.ravel()])
         params = np.array([field.k_p, field.k_r, field.l1, field.l2, p.epsilon, p.beta, x_end, max_steps, t0, speed,
-                           path.x0, path.x1, BACKWARDS, 0.0])
+                           path.x0, path.x1, BACKWARDS])
         xyz, out = np.empty((max_steps + 1, 3)), np.zeros(2, dtype=np.int64)
         loop = self._loops().steps3d or steps3d_loop
         times = np.zeros(0) if step_times is None else np.ascontiguousarray(step_times, dtype=float)

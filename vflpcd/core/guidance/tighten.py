@@ -107,26 +107,6 @@ class Keepout:
     clearance: float
     shift: float = 0.0
 
-    def _travel(self, times: np.ndarray) -> np.ndarray:
-        """How far (M, d) the shape has moved from its stamp at each of times (M,) (plus the shift)."""
-        o = self.obstacle
-        return (np.asarray(times) + self.shift - o.stamp)[:, None] * o.velocity
-
-    def centres(self, times: np.ndarray) -> np.ndarray:
-        """The shape's centre (M, d) at each of times (M,)."""
-        return self.obstacle.center + self._travel(times)
-
-    def signed_distance(self, pts: np.ndarray, times: np.ndarray) -> np.ndarray:
-        """Signed distance of pts (M, d), reached at times (M,), to the shape."""
-        o = self.obstacle
-        return o.signed_distance(pts - self._travel(times)) if o.moving else o.signed_distance(pts)
-
-    def distance_and_normal(self, pts: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Signed distance (M,) of pts (M, d), reached at times (M,), to the shape, and its unit
-        gradient (M, d) (``Shape.distance_and_normal``)."""
-        o = self.obstacle
-        return o.distance_and_normal(pts - self._travel(times) if o.moving else pts)
-
 
 def _near(k: Keepout, body: Body, x: np.ndarray, centres: np.ndarray, beyond: float) -> np.ndarray:
     """Whether some disc of the body at each of the points x (K, d) may come within ``beyond`` m of
@@ -142,7 +122,7 @@ def _disc_distances(keepouts: Sequence[Keepout], body: Body, x: np.ndarray, axes
     ``axes`` (K, d), reached at ``times`` (K,): (near (M, K) the ``_near`` masks for ``beyond``,
     sd (M, J, K) with +inf where a point is not near, and with ``normals`` their unit gradients
     (M, J, K, d) in the world frame, else None). The keepouts of one shape are evaluated in one
-    call of the shape's distance (the same numbers as ``Keepout.signed_distance`` and
+    call of the shape's distance (the same numbers as ``Shape.signed_distance`` and
     ``distance_and_normal`` one keepout at a time): a road with 40 posts and 8 walkers in
     three time shifts asks for 64 of them at every outer round."""
     M, K, d = len(keepouts), len(x), x.shape[1]
@@ -157,8 +137,8 @@ def _disc_distances(keepouts: Sequence[Keepout], body: Body, x: np.ndarray, axes
     for shape, members in groups.items():
         ks = [keepouts[m] for m in members]
         obs = [k.obstacle for k in ks]
-        lag = np.array([k.shift for k in ks])[:, None], np.array([o.stamp for o in obs])[:, None]
-        travel = (times[None, :] + lag[0] - lag[1])[..., None] * np.array([o.velocity for o in obs])[:, None, :]
+        shift, stamp = np.array([k.shift for k in ks])[:, None], np.array([o.stamp for o in obs])[:, None]
+        travel = (times[None, :] + shift - stamp)[..., None] * np.array([o.velocity for o in obs])[:, None, :]
         center = np.array([o.center for o in obs])                             # (G, d)
         mask = np.stack([_near(k, body, x, center[g] + travel[g], beyond) for g, k in enumerate(ks)])
         near[members] = mask
