@@ -636,7 +636,9 @@ class GuidancePlanner(PlannerBase):
         if near:                # slowed, it comes no closer to the others than the plan does (or their clearance)
             floor = min(0.0, self.least_gap(plan.trajectory, near)) - CLEAR_TOLERANCE
         for f in (1.0,) + FOLLOW_SPEEDS:
-            cap = np.where(plan.s < entry, f * self.v_desired, self.v_desired)
+            slow2 = (f * self.v_desired) ** 2          # reached at the entry by an even deceleration from v0
+            ramp = np.sqrt(np.maximum(slow2, v0 * v0 - (v0 * v0 - slow2) * plan.s / max(entry, 1e-9)))
+            cap = np.where(plan.s < entry, np.minimum(ramp, self.v_desired), self.v_desired)
             s, kappa, v = self.speed_plan(plan.xy, cap, v0, _stops(plan.v))
             trajectory = timed_trajectory(plan.xy, s, v, t0, self.dt)
             if self.meets_mover(crossers, trajectory):

@@ -3,7 +3,8 @@
 The centripetal limit v^2 kappa <= a_max gives v_max(s) = min(v_d, sqrt(a_max / kappa(s)));
 a forward pass (v_{k+1}^2 <= v_k^2 + 2 a_acc ds) and a backward pass
 (v_k^2 <= v_{k+1}^2 + 2 a_dec ds) make the profile reachable under the longitudinal limits,
-and only ever lower speeds, so the centripetal limit still holds. Times follow from
+and only ever lower speeds, so the centripetal limit still holds. A speed cap below the robot's
+speed is taken as reached by braking at a_dec from it (``plan_speed``). Times follow from
 dt = 2 ds / (v_k + v_{k+1}).
 """
 
@@ -72,18 +73,25 @@ def plan_speed(xy: np.ndarray, v_desired: float, a_lat_max: float, a_accel: floa
     """Speed profile for the path xy (K, d): returns (s (K,), kappa (K,), v (K,)).
 
     kappa is the largest Menger curvature of each point and its two neighbours (a
-    conservative estimate); v_start is the robot's speed (the profile starts no faster),
-    v_end the speed required at the last point (None: free). ``kappa_cap``: the curvature the
-    centripetal limit takes at most (a path that its fairing will bring within it).
+    conservative estimate); v_start is the robot's speed: the profile starts at it (no faster than
+    the centripetal limit there), and a cap v_desired below it ((K,): a slower stretch to yield
+    or follow) is reached by braking from it at a_decel, not by a step: a plan must join the
+    speed the robot has, or its reference falls behind the robot at once and the tracking brakes
+    hard to catch it. v_end: the speed required at the last point (None: free; a stop shorter
+    than braking at a_decel allows starts the braking at once).
+    ``kappa_cap``: the curvature the centripetal limit takes at most (a path that its fairing
+    will bring within it).
     """
     s = arc_lengths(xy)
     k = menger_curvature(xy)
     kappa = np.maximum(k, np.maximum(np.roll(k, 1), np.roll(k, -1)))
     kappa[0], kappa[-1] = max(k[0], k[min(1, len(k) - 1)]), max(k[-1], k[max(len(k) - 2, 0)])
     with np.errstate(divide="ignore"):
-        v = np.minimum(v_desired, np.sqrt(a_lat_max / np.clip(kappa, 1e-12, kappa_cap)))
-    v[0] = min(v[0], max(v_start, 0.0))
-    w = v * v                      # the passes on v^2 (module docstring), each in closed form:
+        w_bend = a_lat_max / np.clip(kappa, 1e-12, kappa_cap)     # the centripetal limit on v^2
+    w0 = max(v_start, 0.0) ** 2
+    w_cap = np.maximum(np.square(v_desired), w0 - 2.0 * a_decel * s)   # the cap as reached by braking from v_start
+    w = np.minimum(w_cap, w_bend)
+    w[0] = min(w0, w_bend[0])      # the passes on v^2 (module docstring), each in closed form:
     up = 2.0 * a_accel * s         # forward: w_k = min(w_k, min_{j<k} w_j + 2 a_acc (s_k - s_j))
     w[1:] = np.minimum(w[1:], np.minimum.accumulate(w[:-1] - up[:-1]) + up[1:])
     if v_end is not None:

@@ -244,6 +244,28 @@ gamma = 1
         GuidancePlanner(s.path, bad, 3.0, 2.0, 1.25, 0.05).prepare(0.0, [static("c1", Circle(1.0), 8.0, 1.2)])
 
 
+@pytest.mark.parametrize("v_start, v_end", [(7.0, None), (7.0, 0.0), (2.0, None), (0.0, None)])
+def test_a_cap_below_the_start_speed_is_reached_by_braking_not_by_a_step(params, v_start, v_end):
+    """A cap of 3 m/s from the start of a straight 60 m path, the robot at ``v_start``: the profile
+    starts at the robot's speed (before, at the cap: a step the tracking braked hard for), brakes
+    no harder than a_decel, meets the cap where braking at a_decel from v_start does, and
+    keeps the acceleration limit and the stop; a robot slower than the cap accelerates as before."""
+    xy = np.column_stack([np.linspace(0.0, 60.0, 241), np.zeros(241)])
+    cap = np.where(xy[:, 0] < 40.0, 3.0, 7.0)
+    s, _, v = plan_speed(xy, cap, 3.0, params.a_accel, params.a_decel, v_start, v_end)
+    assert v[0] == v_start
+    rate = np.diff(v ** 2) / (2.0 * np.diff(s))
+    assert rate.min() >= -params.a_decel - 1e-9 and rate.max() <= params.a_accel + 1e-9
+    capped = s < 40.0
+    if v_start > 3.0:       # braking at a_decel down to the cap
+        expected = np.maximum(np.sqrt(np.maximum(v_start ** 2 - 2.0 * params.a_decel * s, 0.0)), 3.0)
+    else:                   # accelerating at a_accel up to it
+        expected = np.minimum(np.sqrt(v_start ** 2 + 2.0 * params.a_accel * s), 3.0)
+    assert np.allclose(v[capped], expected[capped], rtol=0.0, atol=1e-9)
+    if v_end is not None:
+        assert v[-1] == 0.0
+
+
 @pytest.mark.parametrize("start_y", [-40.0, -37.0])     # at 6 m/s both reach the crossing at about 6.7 s
 def test_a_car_crossing_the_route_is_yielded_to_not_swerved_round(params, start_y):
     """A car crossing the route at 6 m/s ahead: the plan keeps to the route (no swerve), slows before
@@ -260,6 +282,8 @@ def test_a_car_crossing_the_route_is_yielded_to_not_swerved_round(params, start_
     assert np.max(np.abs(plan.xy[:, 1])) < 0.05                                # on the route
     assert not planner.meets_mover(plan.field.movers, plan.trajectory)        # clear of the car as timed
     assert np.min(plan.v) < 0.95 * planner.v_desired                           # it slowed for it
+    assert plan.v[0] == 6.0                                                    # from the car's speed, braking
+    assert np.min(np.diff(plan.v ** 2) / (2.0 * np.diff(plan.s))) >= -params.a_decel - 1e-9
     assert plan.v[-1] == pytest.approx(planner.v_desired)                      # and went on at speed
     s_, _, v_ = plan_speed(plan.xy, planner.v_desired, 3.0, params.a_accel, params.a_decel, 6.0)
     full_speed = timed_trajectory(plan.xy, s_, v_, 0.0, 0.05)
@@ -371,7 +395,8 @@ def test_a_slow_car_that_cannot_be_passed_is_followed_in_the_lane(params):
     movers = [car("slow", 30.0, 0.0, 3.0)] + [car(f"on{k}", 40.0 + 30.0 * k, 3.5, -7.0) for k in range(5)]
     plan = planner.plan(planner.prepare(0.0, []), np.array([0.0, 0.0]), 0.0, 7.0, movers, heading=0.0)
     assert np.max(np.abs(plan.xy[:, 1])) < 0.05
-    assert plan.v.max() < 7.0 and not planner.meets_mover(plan.field.movers, plan.trajectory)
+    assert plan.v[0] == 7.0 and plan.v[1:].max() < 7.0      # it joins the car's speed and brakes from it
+    assert not planner.meets_mover(plan.field.movers, plan.trajectory)
 
 
 def test_a_crossing_walker_is_yielded_to_while_a_slow_car_ahead_is_passed_tightly(params):
