@@ -14,7 +14,7 @@ from vflpcd.core.guidance.params import GuidanceParams, VirtualObstacleSpec
 from vflpcd.core.vflpc import VFLPCParams
 
 _POSITIVE = ("k_p", "k_r", "l1", "l2", "k_c", "beta", "grid_resolution", "corridor", "epsilon", "reactive_margin",
-             "horizon", "a_accel", "a_decel", "virtual_buffer", "curvature_use", "recovery_reactive_margin")
+             "horizon", "a_accel", "a_decel", "a_yield", "virtual_buffer", "curvature_use", "recovery_reactive_margin")
 
 
 def guidance_params(t: Table, base: GuidanceParams | None = None) -> GuidanceParams:

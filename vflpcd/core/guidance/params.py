@@ -48,4 +48,5 @@ class GuidanceParams:
     tight_length: float = 0.0
     tight_margin: float = 0.4
     tight_mover_window: float = 0.0
+    a_yield: float = 4.0
     virtual_obstacles: tuple[VirtualObstacleSpec, ...] = ()

@@ -348,12 +348,13 @@ class PlannerBase:
             return None
         return replace(plan, trajectory=trajectory, xy=pts, s=s, kappa=kappa, v=v)
 
-    def speed_plan(self, xy: np.ndarray, v_max, v0: float, at_rest: bool, kappa_cap: float = np.inf):
+    def speed_plan(self, xy: np.ndarray, v_max, v0: float, at_rest: bool, kappa_cap: float = np.inf,
+                   a_decel: float | None = None):
         """``plan_speed`` of the path xy up to v_max ((K,) or one number) from v0, ending at rest at the
-        goal with ``at_rest``: (s, kappa, v)."""
+        goal with ``at_rest``, braking at a_decel (default the params'): (s, kappa, v)."""
         p = self.params
-        return plan_speed(xy, v_max, self.a_lat_max, p.a_accel, p.a_decel, v0, v_end=0.0 if at_rest else None,
-                          kappa_cap=kappa_cap)
+        return plan_speed(xy, v_max, self.a_lat_max, p.a_accel, a_decel or p.a_decel, v0,
+                          v_end=0.0 if at_rest else None, kappa_cap=kappa_cap)
 
     def timed(self, xy: np.ndarray, v_max: float, v0: float, t0: float, at_rest: bool):
         """The path xy speed-planned up to v_max from v0 (ending at rest with ``at_rest``) and timed
@@ -397,19 +398,24 @@ class PlannerBase:
         return None
 
 
-def _crossing_entry(xy: np.ndarray, s: np.ndarray, crossing: Sequence[ObstacleImplicit], t0: float) -> float:
-    """The arc length (of s (K,)) of the first point of the path xy (K, d) that comes within a
-    crossing mover's reach of its line of motion (where yielding must be done by); the path's end
-    when none does."""
-    first = len(xy) - 1
-    for o in crossing:
+def _crossing_spans(xy: np.ndarray, s: np.ndarray, crossing: Sequence[ObstacleImplicit], t0: float) -> list:
+    """For each crossing mover whose line of motion the path xy (K, d) crosses, nearest first: the
+    arc lengths (of s (K,)) of the path's first point within the mover's reach of that line (where
+    yielding must be done by) and of its first point on the far side of the line (the yielding's
+    end), and the mover's index in ``crossing``. A mover whose line the path does not cross (one
+    it has passed already) is not yielded to."""
+    spans = []
+    for i, o in enumerate(crossing):
         v = o.velocity / max(float(np.linalg.norm(o.velocity)), 1e-12)
         rel = xy - o.center_at(t0)
-        dist = np.abs(rel[:, 0] * v[1] - rel[:, 1] * v[0])
-        near = np.flatnonzero(dist < o.reach)
-        if near.size:
-            first = min(first, int(near[0]))
-    return float(s[first])
+        side = rel[:, 0] * v[1] - rel[:, 1] * v[0]
+        near = np.flatnonzero(np.abs(side) < o.reach)
+        if not near.size:
+            continue
+        flip = np.flatnonzero(np.sign(side[near[0]:]) != np.sign(side[near[0]]))
+        if flip.size:
+            spans.append((float(s[near[0]]), float(s[near[0] + flip[0]]), i))
+    return sorted(spans)
 
 
 def _arrivals(s: np.ndarray, v: np.ndarray, t0: float) -> np.ndarray:
@@ -615,12 +621,32 @@ class GuidancePlanner(PlannerBase):
                             reached=res.reached, inherited=res.inherited, field=field, gammas=res.gammas,
                             virtual_off=res.virtual_off)
 
+    def _yield_caps(self, s: np.ndarray, entry: float, across: float, v0: float):
+        """The speed caps (K,) over arc lengths s that ``yielding`` tries, with the deceleration the
+        speed plan brakes at, comfortable ones first; each holds until ``across`` (the path has crossed
+        the mover's line) and is free after it: for each of ``FOLLOW_SPEEDS`` of
+        v_desired the slow speed reached at ``entry`` by an even deceleration from v0 (v^2 falling
+        linearly with s: the gentlest), and the same slow speed from the start (braked to at
+        a_decel: the earliest); then the slow speeds from the start braked to at ``a_yield``, where
+        no comfortable plan yields (a walker close ahead of a fast car)."""
+        p, v_d = self.params, self.v_desired
+        before = s < across
+        for f in FOLLOW_SPEEDS:
+            slow2 = (f * v_d) ** 2
+            if v0 * v0 > slow2:
+                ramp = np.sqrt(np.maximum(slow2, v0 * v0 - (v0 * v0 - slow2) * s / max(entry, 1e-9)))
+                yield np.where(before, np.minimum(ramp, v_d), v_d), p.a_decel
+            yield np.where(before, f * v_d, v_d), p.a_decel
+        if p.a_yield > p.a_decel:
+            for f in FOLLOW_SPEEDS:
+                yield np.where(before, f * v_d, v_d), p.a_yield
+
     def yielding(self, prepared: Prepared, field: GuidanceField, start: np.ndarray, t0: float, v0: float,
                  h: np.ndarray | None, movers: Sequence[ObstacleState], crossing: Sequence[ObstacleState]):
         """The plan that yields to the movers crossing the route: planned as if they were not there
         (no swerve round them), then slowed before the first point where its path comes within a
-        crossing mover's reach of that mover's line of motion, to ``FOLLOW_SPEEDS`` of v_desired
-        (fastest first), until its timed trajectory meets no crossing mover and comes no closer to the
+        crossing mover's reach of that mover's line of motion (``_yield_caps``, fastest first), until
+        its timed trajectory meets no crossing mover and comes no closer to the
         others than the unslowed plan (or than their tight clearance); after that point it speeds up
         again. None when the plan must follow another mover or no such speed exists (the field's
         plan passes behind the crossers then)."""
@@ -631,19 +657,20 @@ class GuidancePlanner(PlannerBase):
         if plan is None:
             return None                  # it must follow another mover: the field's plan decides
         crossers = [term for term in field.movers if term.implicit.name in ids]
-        entry = _crossing_entry(plan.xy, plan.s, [term.implicit for term in crossers], t0)
         near = [Keepout(o, self.tight_clearance(o)) for o in others]
         if near:                # slowed, it comes no closer to the others than the plan does (or their clearance)
             floor = min(0.0, self.least_gap(plan.trajectory, near)) - CLEAR_TOLERANCE
-        for f in (1.0,) + FOLLOW_SPEEDS:
-            slow2 = (f * self.v_desired) ** 2          # reached at the entry by an even deceleration from v0
-            ramp = np.sqrt(np.maximum(slow2, v0 * v0 - (v0 * v0 - slow2) * plan.s / max(entry, 1e-9)))
-            cap = np.where(plan.s < entry, np.minimum(ramp, self.v_desired), self.v_desired)
-            s, kappa, v = self.speed_plan(plan.xy, cap, v0, _stops(plan.v))
-            trajectory = timed_trajectory(plan.xy, s, v, t0, self.dt)
-            if self.meets_mover(crossers, trajectory):
-                continue
-            if near and self.least_gap(trajectory, near) < floor:
-                continue
-            return replace(plan, trajectory=trajectory, s=s, kappa=kappa, v=v, field=field)
+        if not self.meets_mover(crossers, plan.trajectory) and not (near and self.least_gap(plan.trajectory, near) < floor):
+            return replace(plan, field=field)
+        spans = _crossing_spans(plan.xy, plan.s, [term.implicit for term in crossers], t0)
+        met = [k for k, (_, _, i) in enumerate(spans) if self.meets_mover([crossers[i]], plan.trajectory)]
+        for entry, across, _ in spans[met[0] if met else 0:]:   # slowing through the first crosser met, then through the next too, ...
+            for cap, a_decel in self._yield_caps(plan.s, entry, across, v0):
+                s, kappa, v = self.speed_plan(plan.xy, cap, v0, _stops(plan.v), a_decel=a_decel)
+                trajectory = timed_trajectory(plan.xy, s, v, t0, self.dt)
+                if self.meets_mover(crossers, trajectory):
+                    continue
+                if near and self.least_gap(trajectory, near) < floor:
+                    continue
+                return replace(plan, trajectory=trajectory, s=s, kappa=kappa, v=v, field=field)
         return None

@@ -9,7 +9,7 @@ from vflpcd.config.scenarios import default_guidance, load_scenario
 from vflpcd.core.guidance.grid import FieldGrid, integrate
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.config.params import guidance_params
-from vflpcd.core.guidance.planner import FOLLOW_SLACK, GuidancePlanner
+from vflpcd.core.guidance.planner import FOLLOW_SLACK, GuidancePlanner, _crossing_spans
 from vflpcd.core.guidance.speed import plan_speed, smooth_path
 from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE, Keepout
 from vflpcd.core.guidance.trajectory import timed_trajectory
@@ -468,3 +468,45 @@ def test_a_late_pass_of_a_slow_car_keeps_the_body_out_of_it(params):
     assert planner.least_gap(plan.trajectory, [Keepout(slow, 0.0)]) > 0.3
     assert not planner.touches_mover([slow], plan.trajectory)
 
+
+
+def test_crossing_spans_skip_a_mover_whose_line_is_passed_and_are_nearest_first(params):
+    """_crossing_spans: a walker whose line of motion lies behind the path's start has none; the
+    others' entries (within reach of their line) and ends (past the line) are ordered by entry."""
+    path = ReferencePath.line([0.0, 0.0], [100.0, 0.0])
+    planner = GuidancePlanner(path, params, 7.0, 3.0, 1.25, 0.05)
+    xy = np.column_stack([np.linspace(20.0, 100.0, 321), np.zeros(321)])
+    s = np.linspace(0.0, 80.0, 321)
+
+    def walker(oid, x, y):
+        o = ObstacleState(id=oid, shape=Circle(0.4), center=np.array([x, y]), yaw=0.0,
+                          velocity=np.array([0.0, 1.4]), stamp=0.0)
+        return planner.actual_term(planner.implicit(o), 0.0).implicit
+
+    movers = [walker("far", 60.0, -8.0), walker("behind", 10.0, -3.0), walker("near", 24.0, -3.0)]
+    spans = _crossing_spans(xy, s, movers, 0.0)
+    assert [i for _, _, i in spans] == [2, 0]
+    for (entry, across, i), line in zip(spans, (24.0, 60.0)):
+        assert entry == pytest.approx(max(line - movers[i].reach - 20.0, 0.0), abs=0.26)
+        assert across == pytest.approx(line - 20.0, abs=0.26) and across >= line - 20.0
+
+
+def test_a_walker_the_car_passes_ahead_of_and_one_farther_are_yielded_to_by_a_plan_that_brakes_from_its_speed(params):
+    """A car at 7 m/s with a walker 4 m ahead that it passes in front of, and another crossing 34 m
+    ahead that it would meet: the plan yields to the farther one (the slowing lasts until the path
+    has crossed that walker's line). It starts at the car's speed, brakes no harder than a_yield,
+    meets neither walker, and slows before the farther walker's line. Before, the slowing ended
+    where the nearer walker's reach begins, 0.4 m ahead, and no plan yielded."""
+    path = ReferencePath.line([0.0, 0.0], [120.0, 0.0])
+    planner = GuidancePlanner(path, params, 7.0, 3.0, 1.25, 0.05)
+    walkers = [ObstacleState(id=oid, shape=Circle(0.4), center=np.array([x, y]), yaw=0.0,
+                             velocity=np.array([0.0, 1.4]), stamp=0.0) for oid, x, y in (("near", 4.0, -4.5), ("far", 34.0, -7.0))]
+    prepared = planner.prepare(0.0, [])
+    field = replace(prepared.field, movers=[planner.actual_term(planner.implicit(o), 0.0) for o in walkers])
+    assert planner.meets_mover(field.movers[1:], planner.plan(prepared, np.zeros(2), 0.0, 7.0, heading=0.0).trajectory)
+    plan = planner.yielding(prepared, field, np.zeros(2), 0.0, 7.0, np.array([1.0, 0.0]), walkers, walkers)
+    assert plan is not None
+    assert plan.v[0] == 7.0
+    assert np.min(np.diff(plan.v ** 2) / (2.0 * np.diff(plan.s))) >= -params.a_yield - 1e-9
+    assert not planner.meets_mover(field.movers, plan.trajectory)
+    assert np.min(plan.v[plan.xy[:, 0] < 34.0]) < 0.8 * 7.0
