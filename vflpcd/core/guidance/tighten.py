@@ -144,27 +144,23 @@ def _disc_distances(keepouts: Sequence[Keepout], body: Body, x: np.ndarray, axes
         near[members] = mask
         if not mask.any():
             continue
-        cy = np.array([math.cos(float(o.yaw)) for o in obs])[:, None, None]
-        sy = np.array([math.sin(float(o.yaw)) for o in obs])[:, None, None]
-        rel = (discs[None] - travel[:, None]) - center[:, None, None, :]      # (G, J, K, d): ``Shape._to_body``
+        g, j, k = np.nonzero(np.broadcast_to(mask[:, None, :], (len(ks), J, K)))   # the near (keepout, disc, point)s
+        cy = np.array([math.cos(float(o.yaw)) for o in obs])[g]
+        sy = np.array([math.sin(float(o.yaw)) for o in obs])[g]
+        rel = (discs[j, k] - travel[g, k]) - center[g]                      # (P, d): ``Shape._to_body``
         body_pts = rel.copy()
-        body_pts[..., 0] = cy * rel[..., 0] + sy * rel[..., 1]
-        body_pts[..., 1] = -sy * rel[..., 0] + cy * rel[..., 1]
-        pick = np.broadcast_to(mask[:, None, :], rel.shape[:3])
+        body_pts[:, 0] = cy * rel[:, 0] + sy * rel[:, 1]
+        body_pts[:, 1] = -sy * rel[:, 0] + cy * rel[:, 1]
+        rows = np.asarray(members)[g]
         if normals:
-            dist, n = shape._sd_normal_body(body_pts[pick])
+            dist, n = shape._sd_normal_body(body_pts)
             world = n.copy()
-            cyp, syp = np.broadcast_to(cy, pick.shape)[pick], np.broadcast_to(sy, pick.shape)[pick]
-            world[:, 0] = cyp * n[:, 0] - syp * n[:, 1]
-            world[:, 1] = syp * n[:, 0] + cyp * n[:, 1]
-            sub = grad[members]
-            sub[pick] = world
-            grad[members] = sub
+            world[:, 0] = cy * n[:, 0] - sy * n[:, 1]
+            world[:, 1] = sy * n[:, 0] + cy * n[:, 1]
+            grad[rows, j, k] = world
         else:
-            dist = shape._sd_body(body_pts[pick])
-        sub = sd[members]
-        sub[pick] = dist
-        sd[members] = sub
+            dist = shape._sd_body(body_pts)
+        sd[rows, j, k] = dist
     return near, sd, grad
 
 
