@@ -22,7 +22,11 @@ and its clock is not set back).
 
 Reception (``Receiver``, per message): a data frame is held until its cryptographic PDU comes;
 at most ``PENDING`` frames of an id wait (the oldest beyond them is dropped), so that frames
-injected between a sender's data frame and its PDU do not make it lose the frame. A PDU is
+injected between a sender's data frame and its PDU do not make it lose the frame. With 4, a flood
+of 150 frames a second can push a command out when the sender is held off some 30 ms between its
+two frames (a loaded machine), and the next command then breaks the ECU's alive-counter
+sequence: the SecOC integration test saw one such counter error in some full-suite runs. Each
+PDU checks at most that many MACs. A PDU is
 checked against the waiting frames, newest first, and takes the one its MAC verifies. The full freshness value is reconstructed from the
 received low bits as the value nearest the reference (the newest accepted value; before the
 first one, the receiver's own clock): a window of half the low bits' range on either side.
@@ -62,7 +66,7 @@ AUTH_ID_OFFSET = 0x80          # the cryptographic PDU's id: the authentic PDU's
 AUTH_SUFFIX = "Auth"           # and its name: the authentic PDU's + "Auth"
 MIN_KEY_BYTES = 16             # 128 bits, SecOC's AES-128 key length
 KEY_MAX_BYTES = 64 * 1024      # a key file is a few dozen bytes
-PENDING = 4                    # data frames of one id waiting for their cryptographic PDU
+PENDING = 16                   # data frames of one id waiting for their cryptographic PDU (module docstring)
 DEFAULT_CLOCK_SKEW_S = 2.0
 
 

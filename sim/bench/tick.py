@@ -163,6 +163,7 @@ def scaling(folder: Path) -> list[dict]:
         record = run_closed_loop(scenario, make_controller("vflpc", scenario))
         m = record.metrics
         rows.append({"static": posts, "movers": walkers, "outcome": record.outcome, "collisions": m["collisions"],
+                     "min_clearance": m["min_clearance"], "J_MC": m["J_MC"],
                      "tick_median_ms": m["t_cal_median"] * 1e3, "tick_p99_ms": m["t_cal_p99"] * 1e3,
                      "replans": m["background_jobs"], "replan_median_ms": m["t_background_median"] * 1e3,
                      "replan_p99_ms": m["t_background_p99"] * 1e3, "replan_max_ms": m["t_background_max"] * 1e3})
@@ -212,12 +213,14 @@ def bench_tick(out: Path) -> dict:
                                   for platform, part in parts.items()))
     print("\n".join(lines), flush=True)
     rows = scaling(out / "scaling_scenarios")
-    head = (f"{'static':>6} {'movers':>6} {'outcome':<10} {'coll':>4} {'tick med ms':>11} {'tick p99 ms':>11} "
-            f"{'replans':>7} {'replan med/p99/max ms':>22}")
+    head = (f"{'static':>6} {'movers':>6} {'outcome':<10} {'coll':>4} {'clear m':>7} {'J_MC':>7} {'tick med ms':>11} "
+            f"{'tick p99 ms':>11} {'replans':>7} {'replan med/p99/max ms':>22}")
     lines = ["", f"Scaling ({ROAD_M:.0f} m road at {SPEED * 3.6:.0f} km/h, posts beside the lane, pedestrians crossing)",
              head, "-" * len(head)]
     for r in rows:
-        lines.append(f"{r['static']:>6} {r['movers']:>6} {r['outcome']:<10} {r['collisions']:>4} {r['tick_median_ms']:>11.3f} "
+        clear = "-" if r["min_clearance"] is None else f"{r['min_clearance']:.2f}"
+        lines.append(f"{r['static']:>6} {r['movers']:>6} {r['outcome']:<10} {r['collisions']:>4} {clear:>7} "
+                     f"{r['J_MC']:>7.3f} {r['tick_median_ms']:>11.3f} "
                      f"{r['tick_p99_ms']:>11.3f} {r['replans']:>7} "
                      f"{r['replan_median_ms']:>8.1f}/{r['replan_p99_ms']:.1f}/{r['replan_max_ms']:.1f}")
     print("\n".join(lines), flush=True)
