@@ -353,7 +353,7 @@ class PlannerBase:
         """``plan_speed`` of the path xy up to v_max ((K,) or one number) from v0, ending at rest at the
         goal with ``at_rest``, braking at a_decel (default the params'): (s, kappa, v)."""
         p = self.params
-        return plan_speed(xy, v_max, self.a_lat_max, p.a_accel, a_decel or p.a_decel, v0,
+        return plan_speed(xy, v_max, self.a_lat_max, p.a_accel, p.a_decel if a_decel is None else a_decel, v0,
                           v_end=0.0 if at_rest else None, kappa_cap=kappa_cap)
 
     def timed(self, xy: np.ndarray, v_max: float, v0: float, t0: float, at_rest: bool):
@@ -644,12 +644,13 @@ class GuidancePlanner(PlannerBase):
     def yielding(self, prepared: Prepared, field: GuidanceField, start: np.ndarray, t0: float, v0: float,
                  h: np.ndarray | None, movers: Sequence[ObstacleState], crossing: Sequence[ObstacleState]):
         """The plan that yields to the movers crossing the route: planned as if they were not there
-        (no swerve round them), then slowed before the first point where its path comes within a
-        crossing mover's reach of that mover's line of motion (``_yield_caps``, fastest first), until
-        its timed trajectory meets no crossing mover and comes no closer to the
-        others than the unslowed plan (or than their tight clearance); after that point it speeds up
-        again. None when the plan must follow another mover or no such speed exists (the field's
-        plan passes behind the crossers then)."""
+        (no swerve round them) and taken as it is when its timed trajectory meets no crossing
+        mover; else slowed (``_yield_caps``, comfortable first) from its start until its path has
+        crossed the line of motion of the first crosser it meets (then of that one and the next,
+        ...), until its timed trajectory meets no crossing mover and comes no closer to the others
+        than the unslowed plan (or than their tight clearance); beyond that line it speeds up
+        again. None when the plan must follow another mover or no slowing yields (the field's plan
+        passes behind the crossers then)."""
         ids = {o.id for o in crossing}
         others = [o for o in movers if o.id not in ids]
         own = replace(field, movers=[term for term in field.movers if term.implicit.name not in ids])
@@ -660,11 +661,11 @@ class GuidancePlanner(PlannerBase):
         near = [Keepout(o, self.tight_clearance(o)) for o in others]
         if near:                # slowed, it comes no closer to the others than the plan does (or their clearance)
             floor = min(0.0, self.least_gap(plan.trajectory, near)) - CLEAR_TOLERANCE
-        if not self.meets_mover(crossers, plan.trajectory) and not (near and self.least_gap(plan.trajectory, near) < floor):
+        if not self.meets_mover(crossers, plan.trajectory):
             return replace(plan, field=field)
         spans = _crossing_spans(plan.xy, plan.s, [term.implicit for term in crossers], t0)
         met = [k for k, (_, _, i) in enumerate(spans) if self.meets_mover([crossers[i]], plan.trajectory)]
-        for entry, across, _ in spans[met[0] if met else 0:]:   # slowing through the first crosser met, then through the next too, ...
+        for entry, across, _ in spans[met[0] if met else 0:]:       # through the first crosser met, then the next
             for cap, a_decel in self._yield_caps(plan.s, entry, across, v0):
                 s, kappa, v = self.speed_plan(plan.xy, cap, v0, _stops(plan.v), a_decel=a_decel)
                 trajectory = timed_trajectory(plan.xy, s, v, t0, self.dt)
