@@ -93,7 +93,7 @@ def steps3d_loop(start, xyz, obstacles, gammas, frame, knots, pieces, params, st
             row = obstacles[n]
             dt = t - row[6]
             cx, cy, cz = row[0] + row[3] * dt, row[1] + row[4] * dt, row[2] + row[5] * dt
-            if (x - row[0] - row[3] * dt) ** 2 + (y - row[1] - row[4] * dt) ** 2 + (z - row[2] - row[5] * dt) ** 2 > row[7]:
+            if (x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2 > row[7]:
                 continue
             phi, gx, gy, gz = superellipsoid_at(x, y, z, cx, cy, cz, row[8], row[9], row[10], row[11], row[12],
                                                 row[13], row[14])

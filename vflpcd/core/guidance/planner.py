@@ -664,8 +664,8 @@ class GuidancePlanner(PlannerBase):
         if not self.meets_mover(crossers, plan.trajectory):
             return replace(plan, field=field)
         spans = _crossing_spans(plan.xy, plan.s, [term.implicit for term in crossers], t0)
-        met = [k for k, (_, _, i) in enumerate(spans) if self.meets_mover([crossers[i]], plan.trajectory)]
-        for entry, across, _ in spans[met[0] if met else 0:]:       # through the first crosser met, then the next
+        first = next((k for k, (_, _, i) in enumerate(spans) if self.meets_mover([crossers[i]], plan.trajectory)), 0)
+        for entry, across, _ in spans[first:]:          # through the first crosser met, then the next
             for cap, a_decel in self._yield_caps(plan.s, entry, across, v0):
                 s, kappa, v = self.speed_plan(plan.xy, cap, v0, _stops(plan.v), a_decel=a_decel)
                 trajectory = timed_trajectory(plan.xy, s, v, t0, self.dt)

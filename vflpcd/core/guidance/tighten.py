@@ -144,23 +144,23 @@ def _disc_distances(keepouts: Sequence[Keepout], body: Body, x: np.ndarray, axes
         near[members] = mask
         if not mask.any():
             continue
-        g, j, k = np.nonzero(np.broadcast_to(mask[:, None, :], (len(ks), J, K)))   # the near (keepout, disc, point)s
-        cy = np.array([math.cos(float(o.yaw)) for o in obs])[g]
-        sy = np.array([math.sin(float(o.yaw)) for o in obs])[g]
-        rel = (discs[j, k] - travel[g, k]) - center[g]                      # (P, d): ``Shape._to_body``
+        gi, ji, ki = np.nonzero(np.broadcast_to(mask[:, None, :], (len(ks), J, K)))   # the near (keepout, disc, point)s
+        cy = np.array([math.cos(float(o.yaw)) for o in obs])[gi]
+        sy = np.array([math.sin(float(o.yaw)) for o in obs])[gi]
+        rel = (discs[ji, ki] - travel[gi, ki]) - center[gi]                 # (P, d): ``Shape._to_body``
         body_pts = rel.copy()
         body_pts[:, 0] = cy * rel[:, 0] + sy * rel[:, 1]
         body_pts[:, 1] = -sy * rel[:, 0] + cy * rel[:, 1]
-        rows = np.asarray(members)[g]
+        rows = np.asarray(members)[gi]
         if normals:
             dist, n = shape._sd_normal_body(body_pts)
             world = n.copy()
             world[:, 0] = cy * n[:, 0] - sy * n[:, 1]
             world[:, 1] = sy * n[:, 0] + cy * n[:, 1]
-            grad[rows, j, k] = world
+            grad[rows, ji, ki] = world
         else:
             dist = shape._sd_body(body_pts)
-        sd[rows, j, k] = dist
+        sd[rows, ji, ki] = dist
     return near, sd, grad
 
 
