@@ -93,8 +93,6 @@ def test_the_path_loop_is_compiled_once_and_warmed_for_the_types_the_path_passes
     assert len(loop.signatures) == 1
 
 
-
-
 def test_the_3d_steps_are_warmed_for_the_types_the_3d_planner_passes():
     """A quadrotor run's replans add no signature to the warmed 3-D steps: a worker that loads
     them from the cache compiles nothing at its first replan (a second signature, for the spline
@@ -114,6 +112,7 @@ def test_the_3d_steps_are_warmed_for_the_types_the_3d_planner_passes():
     record = run_closed_loop(scenario, ctrl, 0)
     assert record.t_background.max() > 0.0                    # a replan ran
     assert len(loop.signatures) == before
+
 
 WORKER = """
 import pickle, sys, time
