@@ -73,6 +73,13 @@ def test_bench_guidance_prints_the_planning_table_and_writes_json_and_png(tmp_pa
     assert (tmp_path / "bench_guidance.png").read_bytes()[:4] == b"\x89PNG"
 
 
+def test_bench_loop_refuses_a_bad_baseline_in_one_line(tmp_path):
+    for bad in ("-1", "nan", "601"):
+        (line,) = refused(["bench", "loop", "--baseline", bad, "--duration", "1", "--out", str(tmp_path)])
+        assert "--baseline" in line and "expected 0 to 600 seconds" in line
+    assert not (tmp_path / "bench_loop.json").exists()
+
+
 def test_bench_guidance_refuses_an_aerial_scenario(tmp_path):
     proc = subprocess.run(VFLPCD + ["bench", "guidance", "--scenario", "uav_3d", "--out", str(tmp_path)],
                           capture_output=True, text=True, timeout=60)

@@ -178,4 +178,7 @@ def test_bench_loop_prints_the_histograms_and_writes_json(mission_file, port, tm
     assert sum(n for _, n in figures["lateness_histogram"]) == figures["ticks"]
     assert figures["telemetry_messages"].get("state", 0) > 10        # the live subscriber heard it
     assert "start lateness" in run.stdout and "ticks whose compute exceeded the period" in run.stdout
+    machine = figures["machine_baseline"]                            # the empty loop ran first, as long
+    assert machine["duration_s"] == 5.0 and 400 <= machine["ticks"] <= 500 and "the machine alone" in run.stdout
+    assert 0.0 <= machine["lateness_p50_ms"] <= machine["lateness_p99_ms"] <= machine["lateness_max_ms"]
     assert (run.returncode == 0) == (figures["compute_over_period"] == 0 and figures["lateness_p99_ms"] <= 2.0)

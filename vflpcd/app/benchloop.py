@@ -6,11 +6,19 @@ telemetry on) at ``rate`` Hz for ``duration`` seconds through the real daemon, w
 subscriber counting the telemetry it receives; then reads the flight log and prints the start
 lateness and compute histograms, the counts that the acceptance asks for (ticks whose compute
 exceeded the period, p99 start lateness), and the worker activity. Writes JSON and PNG.
+
+The subscriber runs in a process of its own, as a ground station would: in the daemon's process
+its callbacks would take the interpreter lock from the control thread it measures. Before the
+daemon, in the same run, an empty loop ticks for ``baseline`` seconds at the same rate, with the
+same rate keeper and scheduling: how late the machine itself starts a thread that does nothing
+(a virtual machine's host can hold a vCPU for several milliseconds). Its ticks started a period
+or more late are overruns that no work in the tick could avoid.
 """
 
 from __future__ import annotations
 
 import json
+import multiprocessing
 import threading
 from dataclasses import replace
 from pathlib import Path
@@ -28,55 +36,129 @@ def histogram(values_ms: np.ndarray) -> list[tuple[str, int]]:
     return list(zip(labels, counts.tolist()))
 
 
-class TelemetryCounter:
-    """A second Zenoh session that counts the messages of each telemetry topic."""
+def _count_telemetry(vehicle_id: str, endpoint: str, conn) -> None:
+    """The live subscriber's process: says "ready" once zenoh is imported; on "open" opens a session
+    to ``endpoint`` and counts the messages of each telemetry topic of ``vehicle_id``; on "stop"
+    sends the counts and ends."""
+    import zenoh
 
-    def __init__(self, vehicle_id: str, endpoint: str) -> None:
-        import zenoh
+    counts: dict[str, int] = {}
+    lock = threading.Lock()
 
-        cfg = zenoh.Config()
-        cfg.insert_json5("mode", '"peer"')
-        cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
-        cfg.insert_json5("scouting/multicast/enabled", "false")
-        self.session = zenoh.open(cfg)
-        self.counts: dict[str, int] = {}
-        self._lock = threading.Lock()
-        self.sub = self.session.declare_subscriber(f"vflpc/{vehicle_id}/**", self._on)
-
-    def _on(self, sample) -> None:
+    def on(sample) -> None:
         topic = str(sample.key_expr).rsplit("/", 1)[-1]
-        with self._lock:
-            self.counts[topic] = self.counts.get(topic, 0) + 1
+        with lock:
+            counts[topic] = counts.get(topic, 0) + 1
+
+    conn.send("ready")
+    if conn.recv() != "open":
+        return
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"peer"')
+    cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(cfg)
+    sub = session.declare_subscriber(f"vflpc/{vehicle_id}/**", on)
+    conn.recv()
+    with lock:
+        conn.send(dict(counts))
+    sub.undeclare()
+    session.close()
+
+
+class TelemetryCounter:
+    """A live subscriber in a process of its own (``_count_telemetry``) that counts the messages of
+    each telemetry topic from ``open()`` until ``counts()``."""
+
+    def __init__(self, vehicle_id: str, endpoint: str, timeout_s: float = 60.0) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self.process = ctx.Process(target=_count_telemetry, args=(vehicle_id, endpoint, child),
+                                   name="vflpcd-bench-subscriber", daemon=True)
+        self.process.start()
+        child.close()
+        if not (self._conn.poll(timeout_s) and self._conn.recv() == "ready"):
+            self.close()
+            raise RuntimeError("the telemetry subscriber process did not start")
+
+    def open(self) -> None:
+        self._conn.send("open")
+
+    def counts(self, timeout_s: float = 10.0) -> dict[str, int]:
+        """The counts so far ({} when the subscriber is gone); it then ends."""
+        try:
+            self._conn.send("stop")
+            return self._conn.recv() if self._conn.poll(timeout_s) else {}
+        except (OSError, EOFError):
+            return {}
 
     def close(self) -> None:
-        self.sub.undeclare()
-        self.session.close()
+        self.process.join(5.0)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join(5.0)
+        self._conn.close()
 
 
-def bench_loop(mission_path: Path | None, rate_hz: float, duration_s: float, executor: str | None, out: Path) -> int:
+def empty_loop(rate_hz: float, duration_s: float, sched_fifo: bool, priority: int) -> dict:
+    """Start lateness of a thread that does nothing at ``rate_hz`` for ``duration_s``, with the
+    daemon's rate keeper and (with ``sched_fifo``, where permitted) its SCHED_FIFO ``priority``:
+    percentiles in ms, the ticks started more than 2 ms and a period or more late."""
+    from vflpcd.daemon.ratekeeper import RateKeeper, set_realtime
+
+    period_s = 1.0 / rate_hz
+    late: list[int] = []
+    realtime: list[bool] = []
+
+    def run() -> None:
+        realtime.append(set_realtime(priority) if sched_fifo else False)
+        rate = RateKeeper(period_s)
+        end = rate.start() + int(duration_s * 1e9)
+        while True:
+            tick = rate.wait()
+            if tick.deadline_ns >= end:
+                break
+            late.append(tick.lateness_ns)
+
+    thread = threading.Thread(target=run, name="empty-loop")
+    thread.start()
+    thread.join()
+    ms = np.array(late, dtype=float) * 1e-6
+    return {"duration_s": duration_s, "sched_fifo": bool(realtime and realtime[0]), "ticks": len(ms),
+            "lateness_p50_ms": float(np.percentile(ms, 50)), "lateness_p99_ms": float(np.percentile(ms, 99)),
+            "lateness_max_ms": float(ms.max()), "late_over_2ms": int(np.sum(ms > 2.0)),
+            "late_a_period": int(np.sum(ms >= period_s * 1e3))}
+
+
+def bench_loop(mission_path: Path | None, rate_hz: float, duration_s: float, executor: str | None, out: Path,
+               baseline_s: float | None = None) -> int:
+    """The bench (module docstring); ``baseline_s``: the empty loop's seconds (None: ``duration_s``,
+    0: none). 0 when no tick's compute exceeded the period and the p99 start lateness is at most
+    2 ms, else 1."""
     from vflpcd.log.reader import read_flight_log
     from vflpcd.config.mission import load_mission
     from vflpcd.app.run import run_mission
 
+    baseline_s = duration_s if baseline_s is None else baseline_s
     mission = load_mission(mission_path or config_dir() / "missions" / "bench_loop.toml")
     if executor is not None:
         mission = replace(mission, workers=replace(mission.workers, executor=executor))
     out.mkdir(parents=True, exist_ok=True)
-    counter: list[TelemetryCounter] = []
-    if mission.telemetry.enabled and mission.telemetry.listen:   # subscribe once the daemon listens
-        timer = threading.Timer(3.0, lambda: counter.append(
-            TelemetryCounter(mission.vehicle_id, mission.telemetry.listen[0])))
-        timer.start()
-    else:
-        timer = None
+    machine = empty_loop(rate_hz, baseline_s, mission.loop.sched_fifo, mission.loop.priority) if baseline_s > 0 else None
+    counter = timer = None
+    counts: dict[str, int] = {}
     try:
+        if mission.telemetry.enabled and mission.telemetry.listen:   # subscribe once the daemon listens
+            counter = TelemetryCounter(mission.vehicle_id, mission.telemetry.listen[0])
+            timer = threading.Timer(3.0, counter.open)
+            timer.start()
         result = run_mission(mission, rate_hz=rate_hz, log_dir=out / "logs", stop_after_s=duration_s)
     finally:
         if timer is not None:
             timer.cancel()
-    counts = dict(counter[0].counts) if counter else {}
-    for c in counter:
-        c.close()
+        if counter is not None:
+            counts = counter.counts()
+            counter.close()
     log = read_flight_log(result.log_path)
     period_ms = 1e3 / rate_hz
     running = log.compute_s > 0
@@ -97,7 +179,7 @@ def bench_loop(mission_path: Path | None, rate_hz: float, duration_s: float, exe
         "refits": len(loop.workers.latencies["refit"]) if loop and loop.workers else None,
         "replan_latency_max_s": max(loop.workers.latencies["replan"], default=0.0) if loop and loop.workers else None,
         "refit_latency_max_s": max(loop.workers.latencies["refit"], default=0.0) if loop and loop.workers else None,
-        "telemetry_messages": counts, "lateness_histogram": histogram(late), "compute_histogram": histogram(comp),
+        "telemetry_messages": counts, "machine_baseline": machine, "lateness_histogram": histogram(late), "compute_histogram": histogram(comp),
         "log": str(result.log_path),
     }
     _print(figures)
@@ -124,6 +206,12 @@ def _print(f: dict) -> None:
           f"(longest {f['replan_latency_max_s']:.3f} s), GP refits {f['refits']} "
           f"(longest {f['refit_latency_max_s']:.3f} s)")
     print(f"telemetry received by a live subscriber: {f['telemetry_messages']}")
+    m = f["machine_baseline"]
+    if m is not None:
+        print(f"the machine alone (an empty loop at {f['rate_hz']:g} Hz for {m['duration_s']:g} s before the daemon, "
+              f"{'SCHED_FIFO' if m['sched_fifo'] else 'not real-time'}): start lateness p50 / p99 / max "
+              f"{m['lateness_p50_ms']:.4f} / {m['lateness_p99_ms']:.4f} / {m['lateness_max_ms']:.4f} ms, "
+              f"{m['late_over_2ms']} ticks more than 2 ms late, {m['late_a_period']} a period or more late")
     print(f"ticks whose compute exceeded the period: {f['compute_over_period']}   "
           f"{'PASS' if f['compute_over_period'] == 0 else 'FAIL'}")
     print(f"p99 start lateness <= 2 ms: {f['lateness_p99_ms']:.4f} ms   "

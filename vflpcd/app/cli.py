@@ -175,6 +175,8 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
     b.add_argument("--executor", choices=("process", "thread"), default=None,
                    help="worker executor (default: the mission's)")
+    b.add_argument("--baseline", type=float, default=None, metavar="SECONDS",
+                   help="seconds of the empty loop run first, the machine's own lateness (default: --duration; 0: none)")
     _out(b)
     b.set_defaults(func=cmd_bench_loop)
 
@@ -301,9 +303,11 @@ def cmd_make_test_ca(args) -> int:
 def cmd_bench_loop(args) -> int:
     if not (1.0 <= args.rate <= 200.0) or args.duration <= 0:
         raise ConfigError("command line", "--rate", "expected a rate in [1, 200] Hz and a positive duration")
+    if args.baseline is not None and not 0.0 <= args.baseline <= 600.0:
+        raise ConfigError("command line", "--baseline", f"expected 0 to 600 seconds, got {args.baseline:g}")
     from vflpcd.app.benchloop import bench_loop
 
-    return bench_loop(args.mission, args.rate, args.duration, args.executor, args.out)
+    return bench_loop(args.mission, args.rate, args.duration, args.executor, args.out, args.baseline)
 
 
 def cmd_scenarios(args) -> int:
