@@ -81,6 +81,23 @@ def test_a_moving_obstacle_is_kept_clear_of_at_the_times_the_points_are_reached(
     assert np.all(o.value(shifted) > o.c)
 
 
+def test_a_path_the_loosest_fairing_leaves_in_a_region_comes_back_without_the_stiffer_ones(monkeypatch):
+    import vflpcd.core.guidance.fairing as fairing
+
+    solves = []
+
+    def counted(*args, **kwargs):
+        solves.append(1)
+        return solve_active_set(*args, **kwargs)
+
+    monkeypatch.setattr(fairing, "solve_active_set", counted)
+    everywhere = Region(lambda pts, t: (np.full(len(pts), -1.0), np.tile([0.0, 1.0], (len(pts), 1))), -0.5)
+    xy = _detour(_obstacle([20.0, -0.5]))            # too sharp: fairing is needed
+    out = fair_path(xy, np.zeros(len(xy)), 0.14, [everywhere], pin_end=True)
+    assert len(solves) == fairing.OUTER_ROUNDS         # one length, FAIR_MIN, not up to FAIR_MAX
+    np.testing.assert_array_equal(out, fairing.resample(xy, np.zeros(len(xy)), SPACING)[0])
+
+
 LOOPS = pytest.mark.parametrize("loop", [None, active_set_loop()], ids=["numpy", "compiled"])
 
 
