@@ -74,9 +74,9 @@ def test_bench_guidance_prints_the_planning_table_and_writes_json_and_png(tmp_pa
 
 
 def test_bench_loop_refuses_a_bad_baseline_in_one_line(tmp_path):
-    for bad in ("-1", "nan", "601"):
+    for bad in ("-1", "nan", "0.5", "601"):
         (line,) = refused(["bench", "loop", "--baseline", bad, "--duration", "1", "--out", str(tmp_path)])
-        assert "--baseline" in line and "expected 0 to 600 seconds" in line
+        assert "--baseline" in line and "expected 0 (none) or 1 to 600 seconds" in line
     assert not (tmp_path / "bench_loop.json").exists()
 
 

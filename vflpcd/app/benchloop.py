@@ -7,18 +7,15 @@ subscriber counting the telemetry it receives; then reads the flight log and pri
 lateness and compute histograms, the counts that the acceptance asks for (ticks whose compute
 exceeded the period, p99 start lateness), and the worker activity. Writes JSON and PNG.
 
-The subscriber runs in a process of its own, as a ground station would: in the daemon's process
-its callbacks would take the interpreter lock from the control thread it measures. Before the
-daemon, in the same run, an empty loop ticks for ``baseline`` seconds at the same rate, with the
-same rate keeper and scheduling: how late the machine itself starts a thread that does nothing
-(a virtual machine's host can hold a vCPU for several milliseconds). Its ticks started a period
-or more late are overruns that no work in the tick could avoid.
+Before the daemon, in the same run, an empty loop ticks for ``baseline`` seconds at the same
+rate, with the same rate keeper and scheduling: how late the machine itself starts a thread that
+does nothing (a virtual machine's host can hold a vCPU for several milliseconds). Its ticks
+started a period or more late are overruns that no work in the tick could avoid.
 """
 
 from __future__ import annotations
 
 import json
-import multiprocessing
 import threading
 from dataclasses import replace
 from pathlib import Path
@@ -36,68 +33,29 @@ def histogram(values_ms: np.ndarray) -> list[tuple[str, int]]:
     return list(zip(labels, counts.tolist()))
 
 
-def _count_telemetry(vehicle_id: str, endpoint: str, conn) -> None:
-    """The live subscriber's process: says "ready" once zenoh is imported; on "open" opens a session
-    to ``endpoint`` and counts the messages of each telemetry topic of ``vehicle_id``; on "stop"
-    sends the counts and ends."""
-    import zenoh
-
-    counts: dict[str, int] = {}
-    lock = threading.Lock()
-
-    def on(sample) -> None:
-        topic = str(sample.key_expr).rsplit("/", 1)[-1]
-        with lock:
-            counts[topic] = counts.get(topic, 0) + 1
-
-    conn.send("ready")
-    if conn.recv() != "open":
-        return
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"peer"')
-    cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(cfg)
-    sub = session.declare_subscriber(f"vflpc/{vehicle_id}/**", on)
-    conn.recv()
-    with lock:
-        conn.send(dict(counts))
-    sub.undeclare()
-    session.close()
-
-
 class TelemetryCounter:
-    """A live subscriber in a process of its own (``_count_telemetry``) that counts the messages of
-    each telemetry topic from ``open()`` until ``counts()``."""
+    """A second Zenoh session that counts the messages of each telemetry topic."""
 
-    def __init__(self, vehicle_id: str, endpoint: str, timeout_s: float = 60.0) -> None:
-        ctx = multiprocessing.get_context("spawn")
-        self._conn, child = ctx.Pipe()
-        self.process = ctx.Process(target=_count_telemetry, args=(vehicle_id, endpoint, child),
-                                   name="vflpcd-bench-subscriber", daemon=True)
-        self.process.start()
-        child.close()
-        if not (self._conn.poll(timeout_s) and self._conn.recv() == "ready"):
-            self.close()
-            raise RuntimeError("the telemetry subscriber process did not start")
+    def __init__(self, vehicle_id: str, endpoint: str) -> None:
+        import zenoh
 
-    def open(self) -> None:
-        self._conn.send("open")
+        cfg = zenoh.Config()
+        cfg.insert_json5("mode", '"peer"')
+        cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
+        cfg.insert_json5("scouting/multicast/enabled", "false")
+        self.session = zenoh.open(cfg)
+        self.counts: dict[str, int] = {}
+        self._lock = threading.Lock()
+        self.sub = self.session.declare_subscriber(f"vflpc/{vehicle_id}/**", self._on)
 
-    def counts(self, timeout_s: float = 10.0) -> dict[str, int]:
-        """The counts so far ({} when the subscriber is gone); it then ends."""
-        try:
-            self._conn.send("stop")
-            return self._conn.recv() if self._conn.poll(timeout_s) else {}
-        except (OSError, EOFError):
-            return {}
+    def _on(self, sample) -> None:
+        topic = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._lock:
+            self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def close(self) -> None:
-        self.process.join(5.0)
-        if self.process.is_alive():
-            self.process.kill()
-            self.process.join(5.0)
-        self._conn.close()
+        self.sub.undeclare()
+        self.session.close()
 
 
 def empty_loop(rate_hz: float, duration_s: float, sched_fifo: bool, priority: int) -> dict:
@@ -144,21 +102,23 @@ def bench_loop(mission_path: Path | None, rate_hz: float, duration_s: float, exe
     if executor is not None:
         mission = replace(mission, workers=replace(mission.workers, executor=executor))
     out.mkdir(parents=True, exist_ok=True)
-    machine = empty_loop(rate_hz, baseline_s, mission.loop.sched_fifo, mission.loop.priority) if baseline_s > 0 else None
-    counter = timer = None
-    counts: dict[str, int] = {}
+    machine = (empty_loop(rate_hz, baseline_s, mission.loop.sched_fifo, mission.loop.priority)
+               if baseline_s > 0 else None)
+    counter: list[TelemetryCounter] = []
+    if mission.telemetry.enabled and mission.telemetry.listen:   # subscribe once the daemon listens
+        timer = threading.Timer(3.0, lambda: counter.append(
+            TelemetryCounter(mission.vehicle_id, mission.telemetry.listen[0])))
+        timer.start()
+    else:
+        timer = None
     try:
-        if mission.telemetry.enabled and mission.telemetry.listen:   # subscribe once the daemon listens
-            counter = TelemetryCounter(mission.vehicle_id, mission.telemetry.listen[0])
-            timer = threading.Timer(3.0, counter.open)
-            timer.start()
         result = run_mission(mission, rate_hz=rate_hz, log_dir=out / "logs", stop_after_s=duration_s)
     finally:
         if timer is not None:
             timer.cancel()
-        if counter is not None:
-            counts = counter.counts()
-            counter.close()
+    counts = dict(counter[0].counts) if counter else {}
+    for c in counter:
+        c.close()
     log = read_flight_log(result.log_path)
     period_ms = 1e3 / rate_hz
     running = log.compute_s > 0
@@ -179,7 +139,8 @@ def bench_loop(mission_path: Path | None, rate_hz: float, duration_s: float, exe
         "refits": len(loop.workers.latencies["refit"]) if loop and loop.workers else None,
         "replan_latency_max_s": max(loop.workers.latencies["replan"], default=0.0) if loop and loop.workers else None,
         "refit_latency_max_s": max(loop.workers.latencies["refit"], default=0.0) if loop and loop.workers else None,
-        "telemetry_messages": counts, "machine_baseline": machine, "lateness_histogram": histogram(late), "compute_histogram": histogram(comp),
+        "telemetry_messages": counts, "machine_baseline": machine,
+        "lateness_histogram": histogram(late), "compute_histogram": histogram(comp),
         "log": str(result.log_path),
     }
     _print(figures)

@@ -176,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--executor", choices=("process", "thread"), default=None,
                    help="worker executor (default: the mission's)")
     b.add_argument("--baseline", type=float, default=None, metavar="SECONDS",
-                   help="seconds of the empty loop run first, the machine's own lateness (default: --duration; 0: none)")
+                   help="seconds of the empty loop run first, the machine's own lateness "
+                        "(default: --duration; 0: none)")
     _out(b)
     b.set_defaults(func=cmd_bench_loop)
 
@@ -303,8 +304,8 @@ def cmd_make_test_ca(args) -> int:
 def cmd_bench_loop(args) -> int:
     if not (1.0 <= args.rate <= 200.0) or args.duration <= 0:
         raise ConfigError("command line", "--rate", "expected a rate in [1, 200] Hz and a positive duration")
-    if args.baseline is not None and not 0.0 <= args.baseline <= 600.0:
-        raise ConfigError("command line", "--baseline", f"expected 0 to 600 seconds, got {args.baseline:g}")
+    if args.baseline is not None and not (args.baseline == 0.0 or 1.0 <= args.baseline <= 600.0):
+        raise ConfigError("command line", "--baseline", f"expected 0 (none) or 1 to 600 seconds, got {args.baseline:g}")
     from vflpcd.app.benchloop import bench_loop
 
     return bench_loop(args.mission, args.rate, args.duration, args.executor, args.out, args.baseline)
