@@ -305,7 +305,8 @@ def cmd_bench_loop(args) -> int:
     if not (1.0 <= args.rate <= 200.0) or args.duration <= 0:
         raise ConfigError("command line", "--rate", "expected a rate in [1, 200] Hz and a positive duration")
     if args.baseline is not None and not (args.baseline == 0.0 or 1.0 <= args.baseline <= 600.0):
-        raise ConfigError("command line", "--baseline", f"expected 0 (none) or 1 to 600 seconds, got {args.baseline:g}")
+        raise ConfigError("command line", "--baseline",
+                          f"expected 0 (none) or 1 to 600 seconds, got {args.baseline:g}")
     from vflpcd.app.benchloop import bench_loop
 
     return bench_loop(args.mission, args.rate, args.duration, args.executor, args.out, args.baseline)

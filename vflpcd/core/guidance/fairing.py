@@ -31,12 +31,12 @@ half-planes that end active, where a primal active set moved a contact point one
 round; a solve that reaches the ``ACTIVE_ROUNDS`` cap returns a point that keeps every
 half-plane (not the minimiser). l is doubled from
 ``FAIR_MIN`` until the peak curvature is within kappa_max; if ``FAIR_MAX`` is reached the flattest
-clear path found is kept and the speed plan does what it can. When the loosest fairing (l =
-``FAIR_MIN``, whose points keep closest to the half-planes they are given) still ends inside a
-region at its points' times (a mover sweeping across a swerve into its lane), the stiffer ones are
-not tried and the path comes back resampled, as it would after all of them: the planner's mover
-checks then turn it down. On `follow_slow_car` the last timing pass of each replan tried all six
-lengths for nothing (the slower replan 61 -> 42 ms); every suite scene, `bench variants`,
+clear path found is kept and the speed plan does what it can. When the first length (l =
+``FAIR_MIN``) already ends inside a region at its points' times (a mover sweeping across a swerve
+into its lane), the stiffer ones are not tried and the path comes back resampled, for the
+planner's mover checks to turn down; a stiffer length that came out clear but too curved would
+have been kept instead. On `follow_slow_car` the last timing pass of each replan tried all six
+lengths for nothing (its slower replan 61 -> 42 ms); every suite scene, the road variants,
 carsim_avoidance and uav_3d gave the same numbers to the last digit.
 """
 
