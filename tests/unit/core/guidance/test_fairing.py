@@ -81,7 +81,7 @@ def test_a_moving_obstacle_is_kept_clear_of_at_the_times_the_points_are_reached(
     assert np.all(o.value(shifted) > o.c)
 
 
-def test_a_path_the_loosest_fairing_leaves_in_a_region_comes_back_without_the_stiffer_ones(monkeypatch):
+def test_a_path_the_first_fairing_length_leaves_in_a_region_comes_back_without_the_stiffer_ones(monkeypatch):
     import vflpcd.core.guidance.fairing as fairing
 
     solves = []
