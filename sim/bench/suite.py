@@ -55,12 +55,13 @@ def clean(row: dict) -> bool:
 def totals(rows: list[dict], controllers: tuple[str, ...]) -> dict:
     """Per controller: scenes completed without a collision, collisions, scenes with the lowest J_MC
     among that scene's clean runs; and the scenes where VF-LPC's peak lateral error exceeds the
-    NMPC's by more than PEAK_MARGIN (None unless both ran)."""
+    NMPC's by more than PEAK_MARGIN (None unless both ran), with the NMPC's outcome there."""
     scenes = list(dict.fromkeys(r["scenario"] for r in rows))
     out = {c: {"clean": sum(clean(r) for r in rows if r["controller"] == c),
                "collisions": sum(r["collisions"] for r in rows if r["controller"] == c),
                "lowest_J_MC": 0, "runs": sum(r["controller"] == c for r in rows)} for c in controllers}
     peak_worse = [] if {"vflpc", "nmpc_cbf"} <= set(controllers) else None
+    nmpc_outcome: dict[str, str] = {}       # the NMPC's outcome in those scenes (one that stopped did not pass)
     for s in scenes:
         mine = {r["controller"]: r for r in rows if r["scenario"] == s}
         ok = [r for r in mine.values() if clean(r) and np.isfinite(r["J_MC"])]
@@ -71,7 +72,9 @@ def totals(rows: list[dict], controllers: tuple[str, ...]) -> dict:
         if peak_worse is not None and "vflpc" in mine and "nmpc_cbf" in mine:
             if mine["vflpc"]["peak_lateral_error"] - mine["nmpc_cbf"]["peak_lateral_error"] > PEAK_MARGIN:
                 peak_worse.append(s)
-    return {"controllers": out, "vflpc_peak_lateral_over_nmpc": peak_worse, "scenes": len(scenes)}
+                nmpc_outcome[s] = mine["nmpc_cbf"]["outcome"]
+    return {"controllers": out, "vflpc_peak_lateral_over_nmpc": peak_worse, "nmpc_outcome": nmpc_outcome,
+            "scenes": len(scenes)}
 
 
 HEAD = (f"{'scenario':<24} {'controller':<20} {'outcome':<10} {'coll':>4} {'clear m':>7} {'J_MC':>7} "
@@ -92,8 +95,9 @@ def totals_text(t: dict) -> str:
                      f"{v['collisions']}, lowest J_MC among the clean runs in {v['lowest_J_MC']}")
     worse = t["vflpc_peak_lateral_over_nmpc"]
     if worse is not None:
+        where = [f"{s} (the NMPC {t['nmpc_outcome'][s]})" for s in worse]
         lines.append(f"  VF-LPC peak lateral error > NMPC's + {PEAK_MARGIN:g} m in {len(worse)} scenes"
-                     + (f": {', '.join(worse)}" if worse else ""))
+                     + (f": {', '.join(where)}" if worse else ""))
     return "\n".join(lines)
 
 

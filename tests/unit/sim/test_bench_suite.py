@@ -36,7 +36,15 @@ def test_totals_count_clean_runs_collisions_and_the_lowest_j_mc_among_clean_runs
     assert t["vflpc_peak_lateral_over_nmpc"] == ["b"] and t["scenes"] == 3
     text = totals_text(t)
     assert "completed without collision 2/3, collisions 0, lowest J_MC among the clean runs in 1" in text
-    assert "VF-LPC peak lateral error > NMPC's + 1 m in 1 scenes: b" in text
+    assert "VF-LPC peak lateral error > NMPC's + 1 m in 1 scenes: b (the NMPC completed)" in text
+
+
+def test_the_peak_lateral_comparison_says_where_the_nmpc_stopped_short():
+    rows = [row("a", "vflpc", peak=1.8), row("a", "nmpc_cbf", "stopped", peak=0.0),
+            row("b", "vflpc", peak=3.5), row("b", "nmpc_cbf", peak=0.8), row("c", "vflpc"), row("c", "nmpc_cbf")]
+    t = totals(rows, ("vflpc", "nmpc_cbf"))
+    assert t["vflpc_peak_lateral_over_nmpc"] == ["a", "b"] and t["nmpc_outcome"] == {"a": "stopped", "b": "completed"}
+    assert "in 2 scenes: a (the NMPC stopped), b (the NMPC completed)" in totals_text(t)
 
 
 def test_totals_without_the_nmpc_have_no_peak_comparison_and_nan_j_mc_never_wins():
