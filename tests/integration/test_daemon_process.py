@@ -155,9 +155,14 @@ def test_vehicle_mission_completes_in_real_time(port, tmp_path):
     assert "collisions                   0 obstacles touched" in run.stdout
     log = read_flight_log(next((tmp_path / "logs").glob("*.mcap")))
     assert 35.0 < log.t[-1] < 45.0 and wall > log.t[-1]          # real time, not faster
-    # a tick that ends a period late only when the process is preempted that long: rare even on a
-    # test machine shared with other tests (`vflpcd bench loop`, run alone, holds the 0-overrun figure)
-    assert log.overrun.sum() <= 2, f"{int(log.overrun.sum())} overruns in {len(log.t)} ticks"
+    # The tick's work fits its period many times over; a tick ends a period late only when the
+    # process is kept from the CPU that long. This mission runs without SCHED_FIFO, and on the test
+    # machine the other test processes share its two cores: a full-suite run saw 10 overruns in 746
+    # ticks, each one a stall of 60-150 ms with a compute of 0.5 ms. So a few are allowed, not a
+    # habit (`vflpcd bench loop`, run alone with SCHED_FIFO, holds the 0-overrun figure).
+    period = float(np.median(np.diff(log.t)))                   # 0.05 s: the mission's 20 Hz
+    assert np.median(log.compute_s) < 0.1 * period, f"compute median {np.median(log.compute_s):.4f} s"
+    assert log.overrun.sum() <= 0.03 * len(log.t), f"{int(log.overrun.sum())} overruns in {len(log.t)} ticks"
     png = tmp_path / "plot.png"
     plot = subprocess.run([sys.executable, "-m", "vflpcd.app.cli", "plot", str(log.path), "--out", str(png)],
                           cwd=ROOT, capture_output=True, text=True, timeout=120)
