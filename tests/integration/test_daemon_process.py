@@ -185,5 +185,5 @@ def test_bench_loop_prints_the_histograms_and_writes_json(mission_file, port, tm
     assert "start lateness" in run.stdout and "ticks whose compute exceeded the period" in run.stdout
     machine = figures["machine_baseline"]                            # the empty loop ran first, as long
     assert machine["duration_s"] == 5.0 and 400 <= machine["ticks"] <= 500 and "the machine alone" in run.stdout
-    assert 0.0 <= machine["lateness_p50_ms"] <= machine["lateness_p99_ms"] <= machine["lateness_max_ms"]
+    assert machine["lateness_p50_ms"] < 5.0                          # it ticked on its deadlines (period 10 ms)
     assert (run.returncode == 0) == (figures["compute_over_period"] == 0 and figures["lateness_p99_ms"] <= 2.0)

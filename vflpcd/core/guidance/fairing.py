@@ -306,7 +306,7 @@ def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequ
             best, best_kappa = kept, kappa
         if clear and kappa <= kappa_max:
             return kept
-        if not clear and fair == FAIR_MIN:      # the loosest fairing stays in a region: none is tried stiffer
+        if not clear and fair == FAIR_MIN:      # the first length stays in a region: none is tried stiffer
             return best
         fair *= 2.0
     return best
