@@ -3,6 +3,7 @@ trigger ends in the failsafe with the vehicle at rest and the event logged, and 
 exit code 5, never a success."""
 
 import json
+import re
 import threading
 import time
 
@@ -46,7 +47,8 @@ def test_a_plan_the_car_cannot_drive_stops_it(mission_file, tmp_path):
     result = run_mission(load_mission(mission_file(route="corridor.toml", rate_hz=RATE, hold=0.5)))
     event = assert_failsafe(result, "undrivable_plan")
     assert "beyond the steering limit 0.174 1/m" in event.detail["reason"]
-    assert "no valid plan for 2.0 s" in event.detail["reason"]
+    waited = float(re.search(r"no valid plan for ([0-9.]+) s \(limit 2 s\)", event.detail["reason"]).group(1))
+    assert 2.0 <= waited <= 2.0 + 3 / RATE      # plan_timeout, a tick or two later on a loaded machine
 
 
 def test_replans_that_keep_failing_stop_the_car(mission_file, tmp_path):
