@@ -20,6 +20,11 @@ DBC = config_dir() / "can" / "vehicle.dbc"
 
 
 def can_mission(folder: Path, interface: str, channel: str, *, hold: float = 3.0) -> Path:
+    """The carsim_avoidance mission over CAN. ``platform.state_timeout`` at 0.25 s, not its default
+    0.1 s, as the ECU's command timeout below: the frames cross a websocket hub between three
+    processes that share two cores with the other test workers, and a CI run saw 100 ms without an
+    INS frame at t = 25 s (the link then came back within the next 0.1 s). ``failsafe.state_max_age``
+    at 0.3 s, above it, so that a silent bus is named a lost link, not a stale state."""
     path = folder / "vehicle_can.toml"
     path.write_text(f"""vehicle_id = "suv1"
 [platform]
@@ -27,6 +32,7 @@ kind = "can"
 interface = "{interface}"
 channel = "{channel}"
 bus_log = "asc"
+state_timeout = 0.25
 [route]
 scenario = "carsim_avoidance"
 [controller]
@@ -40,7 +46,7 @@ executor = "process"
 [telemetry]
 enabled = false
 [failsafe]
-state_max_age = 0.2
+state_max_age = 0.3
 connect_timeout = 20.0
 hold = {hold}
 [log]
