@@ -223,10 +223,22 @@ def _inflated_boundary(shape, distance: float, n: int, tol: float = 1e-12) -> np
     def f(t):
         return shape.signed_distance(dirs * t[:, None], zero, 0.0) - target
 
-    a, b = np.zeros(len(dirs)), np.full(len(dirs), shape.bounding_radius() + distance + 1.0)
-    fa, fb = f(a), f(b)
-    side = np.zeros(len(dirs))                 # which end was kept last time: -1 a, +1 b
     found = np.full(len(dirs), np.nan)         # a point within tol / 2 of the target, per ray
+    a, b = np.zeros(len(dirs)), np.full(len(dirs), shape.bounding_radius() + distance + 1.0)
+    near = _offset_radii(shape, dirs, target)
+    if near is None:
+        fa, fb = f(a), f(b)
+    else:                         # the offset curve's points where they hold, else a bracket round them
+        fn = f(near)
+        found = np.where(np.abs(fn) <= 0.5 * tol, near, found)
+        if not np.isnan(found).any():
+            return dirs * found[:, None]
+        a_near, b_near = near - OFFSET_BRACKET, near + OFFSET_BRACKET
+        fa_near, fb_near = f(a_near), f(b_near)
+        held = (fa_near < 0.0) & (fb_near > 0.0)
+        a, b = np.where(held, a_near, a), np.where(held, b_near, b)
+        fa, fb = np.where(held, fa_near, f(a)), np.where(held, fb_near, f(b))
+    side = np.zeros(len(dirs))                 # which end was kept last time: -1 a, +1 b
     for _ in range(100):
         with np.errstate(invalid="ignore", divide="ignore"):       # a closed bracket: 0 / 0
             c = b - fb * (b - a) / (fb - fa)
@@ -244,6 +256,52 @@ def _inflated_boundary(shape, distance: float, n: int, tol: float = 1e-12) -> np
         if (~np.isnan(found) | (b - a < tol)).all():
             break
     return dirs * np.where(np.isnan(found), b, found)[:, None]
+
+
+#: half-width (m) of the bracket that ``_inflated_boundary`` starts from round ``_offset_radii``
+OFFSET_BRACKET = 1e-4
+#: samples of the offset curve per ray, and Newton steps, in ``_offset_radii``
+OFFSET_SAMPLES = 8
+OFFSET_NEWTON = 3
+
+
+def _offset_radii(shape, dirs: np.ndarray, distance: float) -> np.ndarray | None:
+    """Where the rays ``dirs`` (n, 2) from a planar shape's centre meet {sd = distance}, in closed
+    form round a circle (radius + distance) and a box (its sides pushed out by distance, joined by
+    quarter circles of that radius round its corners), by Newton's method round an ellipse; None for
+    the other shapes. The ellipse's offset curve P(th) = E(th) + distance n(th), E(th) = (a cos th,
+    b sin th), n the unit outward normal, is a closed convex curve round the centre whose polar
+    angle grows with th, and P'(th) = (1 + distance kappa(th)) E'(th), kappa = ab / h^3,
+    h = |E'(th)|: the ray's th is interpolated in the polar angle of P sampled at OFFSET_SAMPLES
+    times the rays, then OFFSET_NEWTON Newton steps on u x P(th) = 0 take it to rounding."""
+    if shape.kind == "circle":
+        return np.full(len(dirs), shape.radius + distance)
+    if shape.kind == "box":
+        (hx, hy), u = shape.support_extent(), np.abs(dirs)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            side_x, side_y = (hx + distance) / u[:, 0], (hy + distance) / u[:, 1]
+        p = u[:, 0] * hx + u[:, 1] * hy
+        corner = p + np.sqrt(np.maximum(p * p - hx * hx - hy * hy + distance * distance, 0.0))
+        return np.where(side_x * u[:, 1] <= hy, side_x, np.where(side_y * u[:, 0] <= hx, side_y, corner))
+    if shape.kind != "ellipse":
+        return None
+    a, b = shape.a, shape.b
+
+    def offset(th):
+        c, s = np.cos(th), np.sin(th)
+        h = np.hypot(a * s, b * c)
+        return c, s, h, a * c + distance * b * c / h, b * s + distance * a * s / h
+
+    th = np.linspace(0.0, 2.0 * np.pi, OFFSET_SAMPLES * len(dirs) + 1)
+    x, y = offset(th)[3:]
+    phi = np.unwrap(np.arctan2(y, x))                           # rising from 0 to 2 pi with th
+    th = np.interp(np.mod(np.arctan2(dirs[:, 1], dirs[:, 0]), 2.0 * np.pi), phi, th)
+    for _ in range(OFFSET_NEWTON):
+        c, s, h, x, y = offset(th)
+        stretch = 1.0 + distance * a * b / h ** 3
+        th = th - (dirs[:, 0] * y - dirs[:, 1] * x) / (stretch * (dirs[:, 0] * b * c + dirs[:, 1] * a * s))
+    x, y = offset(th)[3:]
+    return dirs[:, 0] * x + dirs[:, 1] * y
 
 
 class ObstacleImplicit:

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from vflpcd.core.guidance.field import ActualTerm, GuidanceField, VirtualTerm
-from vflpcd.core.guidance.implicit import (E, CirclePath, GraphPath, GuidanceError, LinePath, ObstacleImplicit,
-                                          _inflated_boundary)
+from vflpcd.core.guidance.implicit import (E, CirclePath, GraphPath, GuidanceError, LinePath,
+                                          ObstacleImplicit, _inflated_boundary, _offset_radii, _sphere_directions)
 from vflpcd.core.guidance.primitives import bump, cup_at, row_centre, s_virtual, superellipse_at, unit
 from vflpcd.core.shapes import Box, Box3, Circle, Cylinder, Ellipse, Ellipsoid, Sphere
 
@@ -98,6 +98,37 @@ def test_inflated_boundary_points_lie_on_the_outer_side_within_the_tolerance(sha
     loose = _inflated_boundary(shape, 1.5, 200, tol=1e-6)
     off = shape.signed_distance(loose, np.zeros(shape.dim)) - 1.5
     assert off.min() >= 0.0 and off.max() <= 1e-6
+
+
+@pytest.mark.parametrize("shape", [Circle(0.7), Box(4.5, 1.9), Box(0.5, 0.5), Ellipse(2.0, 1.0), Ellipse(0.4, 0.3)],
+                         ids=["circle", "box", "square", "ellipse", "small ellipse"])
+@pytest.mark.parametrize("distance", [0.1, 1.5, 3.0])
+def test_offset_radii_meet_the_offset_curve_to_rounding(shape, distance):
+    dirs = _sphere_directions(2, 720)
+    radii = _offset_radii(shape, dirs, distance)
+    off = shape.signed_distance(dirs * radii[:, None], np.zeros(2)) - distance
+    assert np.abs(off).max() <= 1e-13
+    pts = _inflated_boundary(shape, distance, 720)          # the search's contract holds, from them
+    off = shape.signed_distance(pts, np.zeros(2)) - distance
+    assert off.min() >= 0.0 and off.max() <= 1e-12
+
+
+@pytest.mark.parametrize("error", [1e-6, 0.5])
+def test_inflated_boundary_searches_from_offset_radii_that_miss(monkeypatch, error):
+    """Radii off by 1e-6 m leave the search a bracket of +-OFFSET_BRACKET round them; by 0.5 m,
+    outside it, the wide bracket. The contract holds either way."""
+    import vflpcd.core.guidance.implicit as implicit
+
+    exact = implicit._offset_radii
+    monkeypatch.setattr(implicit, "_offset_radii", lambda shape, dirs, d: exact(shape, dirs, d) + error)
+    shape = Ellipse(2.0, 1.0)
+    pts = _inflated_boundary(shape, 1.5, 200)
+    off = shape.signed_distance(pts, np.zeros(2)) - 1.5
+    assert off.min() >= 0.0 and off.max() <= 1e-12
+
+
+def test_offset_radii_leave_three_dimensional_shapes_to_the_wide_bracket():
+    assert _offset_radii(Sphere(1.0), _sphere_directions(3, 50), 1.0) is None
 
 
 def test_moving_obstacle_translates_with_time():
