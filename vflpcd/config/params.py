@@ -70,7 +70,8 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
             raise
     cost.check_known({"q_ground", "r_ground", "r_rate_ground", "q_aerial", "r_aerial", "r_rate_aerial", "q_lift",
                       "gamma", "r_rate_threat_ground", "r_rate_threat_aerial",
-                      "r_rate_light_ground", "r_rate_light_aerial", "light_hold", "light_speeds"})
+                      "r_rate_light_ground", "r_rate_light_aerial", "light_hold", "light_speeds",
+                      "command_increments_ground", "command_increments_aerial"})
     hor.check_known({"seconds"})
     sol.check_known({"i_max", "tol", "eta_a", "divergence"})
     feat.check_known({"error_std_ground", "error_std_aerial", "samples", "size", "nu", "ell_factor", "seed"})
@@ -130,4 +131,13 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
                R_rate_light=None if r_light is None else np.diag(r_light),
                light_hold=cost.number("light_hold", 2.0, min=0.0),
                light_speeds=(float(light_speeds[0]), float(light_speeds[1])),
+               command_increments=(cost.strings(f"command_increments_{platform}", choices=_inputs(platform))
+                                   if cost.has(f"command_increments_{platform}") else ()),
                vehicle_params=vehicle_params)
+
+
+def _inputs(platform: str) -> tuple[str, ...]:
+    """The control inputs of a platform's models (the names ``command_increments_<platform>`` takes)."""
+    from vflpcd.config.vehicles import CONTROL_NAMES, QUAD_CONTROL_NAMES
+
+    return CONTROL_NAMES if platform == "ground" else QUAD_CONTROL_NAMES

@@ -164,6 +164,7 @@ class VFLPCParams:
     R_rate_light: np.ndarray | None = None
     light_hold: float = 2.0
     light_speeds: tuple[float, float] = (0.0, np.inf)
+    command_increments: tuple[str, ...] = ()
     gp_channels: tuple[str, ...] = ("Y", "psi", "vx", "vy", "omega")
     gp_ell: float = 3.0
     gp_sf2: float = 0.05
@@ -285,6 +286,11 @@ class VFLPC(ControllerBase):
                                       gp_jacobians=params.gp_linearisation == "gp",
                                       schedule_at=planner.v_desired if model.scheduled else None,
                                       problem_loop=problem_loop, tick_loops=tick_loops)
+        unknown = set(params.command_increments) - set(model.control_names)
+        if unknown:
+            raise ValueError(f"command_increments: {', '.join(sorted(unknown))} is not an input of the model "
+                             f"{model.control_names}")
+        self._command = np.array([n in params.command_increments for n in model.control_names])
         self.rate = None
         self._threat_mode = None      # (rate form, solver) while a mover is in E_p (R_rate_threat)
         self._light_mode = None       # (rate form, solver) while its plans keep the rate limit (R_rate_light)
@@ -292,7 +298,7 @@ class VFLPC(ControllerBase):
             u_std = None
             A, B, Q, R, P = em.A, em.B, em.Q, em.R, em.P
             if params.R_rate is not None:
-                self.rate = rf = RateForm.of(em.A, em.B, em.Q, em.R, params.R_rate, em.gamma)
+                self.rate = rf = RateForm.of(em.A, em.B, em.Q, em.R, params.R_rate, em.gamma, self._command)
                 A, B, Q, R, P = rf.A, rf.B, rf.Q, rf.R, rf.P
                 span = limits.u_max - limits.u_min
                 u_std = 0.25 * np.where(np.isfinite(span), span, 1.0)
@@ -301,7 +307,7 @@ class VFLPC(ControllerBase):
             solver = EbRHRL(A, B, Q, R, P, em.gamma, feats, self.N, params.eta_a, params.i_max, params.tol,
                             loop=solve_loop)
             def mode(R_rate):
-                rf = RateForm.of(em.A, em.B, em.Q, em.R, R_rate, em.gamma)
+                rf = RateForm.of(em.A, em.B, em.Q, em.R, R_rate, em.gamma, self._command)
                 return rf, EbRHRL(rf.A, rf.B, rf.Q, rf.R, rf.P, em.gamma, feats, self.N, params.eta_a,
                                   params.i_max, params.tol, loop=solve_loop)
             if self.rate is not None and params.R_rate_threat is not None:
@@ -652,6 +658,7 @@ class VFLPC(ControllerBase):
         (u~_{-1} = u_prev - u_r,0, so step 0 moves it by v_0); open for an input without a limit."""
         ref_step, lo, hi = self._rate_arrays      # written in place (no per-tick allocation)
         np.subtract(problem.u_ref[1:], problem.u_ref[:-1], out=ref_step[1:])
+        ref_step[:, self._command] = 0.0         # an input whose v is the command's own increment
         du = self.limits.du_max
         np.subtract(-du, ref_step, out=lo)
         np.subtract(du, ref_step, out=hi)

@@ -14,6 +14,19 @@ control deviation and the decision is the increment:
 with u~_{-1} = u_prev - u_r,0. The control cost acts on u~_{tau-1} (one step late), and the
 half-planes and the barrier act on the x~ part unchanged. The applied deviation is
 u~_0 = u~_{-1} + v_0.
+
+An input in ``command`` has the command's own increment as its v instead, v_tau = u_tau - u_{tau-1}:
+then u~_tau = u~_{tau-1} + v_tau - (u_r,tau - u_r,tau-1), the reference control's steps enter the
+affine terms,
+
+    z_{tau+1} = ... + [c_tau - B_tau s_tau; -s_tau],   s_tau = u_r,tau - u_r,tau-1 (s_0 = 0),
+
+and R_rate weighs the command's rate of change wherever it comes from. Without it, a step of u_r
+inside the horizon costs nothing, but at the next tick u~_{-1} = u_prev - u_r,0 carries the same
+step into v_0, which R_rate then slows: the plan of one tick (follow the step) is not the next
+tick's, and the command lags a planned step instead of easing into it ahead of it (a stop planned
+at 2.5 m/s^2 from 6 m/s: the throttle began to brake as the reference did and the car stopped
+0.3 m past the goal; in the command's increments it brakes 0.75 s earlier and stops 0.1 m short).
 """
 
 from __future__ import annotations
@@ -30,7 +43,8 @@ from vflpcd.core.control.problem import HorizonProblem
 class RateForm:
     """The nominal increment-form matrices of an error model with A (n, n), B (n, n_u), Q, R,
     discount gamma and increment weight R_rate (n_u, n_u): A, B, Q, R (= R_rate), P (DARE) and the
-    terminal LQR gain K_terminal (n_u, n + n_u)."""
+    terminal LQR gain K_terminal (n_u, n + n_u); ``command`` (n_u,) bool: the inputs whose
+    increment is the command's own (module docstring)."""
 
     n: int
     n_u: int
@@ -41,13 +55,17 @@ class RateForm:
     P: np.ndarray
     K_terminal: np.ndarray
     gamma: float
+    command: np.ndarray
     _pair: list = field(default_factory=lambda: [None, None, None], compare=False, repr=False)
     _blank: dict = field(default_factory=dict, compare=False, repr=False)     # N -> _Blank
 
     @classmethod
     def of(cls, A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, R_rate: np.ndarray,
-           gamma: float) -> "RateForm":
+           gamma: float, command: np.ndarray | None = None) -> "RateForm":
         n, n_u = B.shape
+        command = np.zeros(n_u, bool) if command is None else np.asarray(command, bool)
+        if command.shape != (n_u,):
+            raise ValueError(f"command must be {n_u} flags, one per input, got {command!r}")
         R_rate = np.asarray(R_rate, float)
         if R_rate.shape != (n_u, n_u) or np.any(np.linalg.eigvalsh(0.5 * (R_rate + R_rate.T)) <= 0):
             raise ValueError(f"R_rate must be a positive definite {n_u}x{n_u} matrix, got {R_rate!r}")
@@ -56,7 +74,7 @@ class RateForm:
         g = np.sqrt(gamma)
         P = sl.solve_discrete_are(g * Az, g * Bz, Qz, R_rate)
         K = np.linalg.solve(R_rate + gamma * Bz.T @ P @ Bz, gamma * Bz.T @ P @ Az)
-        return cls(n, n_u, Az, Bz, Qz, R_rate, P, K, float(gamma))
+        return cls(n, n_u, Az, Bz, Qz, R_rate, P, K, float(gamma), command)
 
     def problem(self, p: HorizonProblem) -> HorizonProblem:
         """The increment form of problem p (module docstring); its u_ref is the previous deviation
@@ -65,6 +83,11 @@ class RateForm:
         A, B = self._augmented(p.A, p.B)
         c = np.zeros((N, n + n_u))
         c[:, :n] = p.c
+        if self.command.any():               # the reference control's steps s_tau (module docstring)
+            step = np.zeros((N, n_u))
+            step[1:, self.command] = (p.u_ref[1:] - p.u_ref[:-1])[:, self.command]
+            c[:, :n] -= np.einsum("tij,tj->ti", p.B, step)
+            c[:, n:] = -step
         x0 = np.empty(n + n_u)
         x0[:n] = p.x0
         np.subtract(p.u_prev, p.u_ref[0], out=x0[n:])

@@ -1,6 +1,7 @@
 """The increment (rate-aware) form of the horizon problem, and Eb-RHRL on it."""
 
 import numpy as np
+import pytest
 import scipy.linalg as sl
 
 from vflpcd.core.control.ebrhrl import EbRHRL, KernelFeatures
@@ -39,6 +40,39 @@ def test_the_increment_form_predicts_what_the_original_does():
     terminal = xz[-1] @ rf.P @ xz[-1]
     assert np.isclose(z.cost(v), np.sum(p.gamma ** np.arange(N) * stages) + p.gamma ** N * terminal)
     assert z.G.shape == (N + 1, 1, n + n_u) and np.all(z.G[..., n:] == 0.0)
+
+
+def test_a_command_increment_is_the_command_s_own_change_reference_steps_included():
+    """Input 0 in ``command``: its v is u_tau - u_{tau-1} (u_{-1} = u_prev), so the same commands
+    predict the same errors as the original problem, and R_rate weighs the command's own steps."""
+    rng = np.random.default_rng(2)
+    p = _problem(rng)
+    rf = RateForm.of(p.A[0], p.B[0], p.Q, p.R, np.diag([1.0, 50.0]), p.gamma, command=np.array([True, False]))
+    z = rf.problem(p)
+    u = rng.normal(size=(N, n_u))                                 # the commands applied
+    u_tilde = u - p.u_ref
+    v = np.empty((N, n_u))
+    v[:, 0] = np.diff(np.concatenate([[p.u_prev[0]], u[:, 0]]))  # the command's own increments
+    v[:, 1] = np.diff(np.concatenate([[p.u_prev[1] - p.u_ref[0, 1]], u_tilde[:, 1]]))   # the deviation's
+    xz = z.rollout(v)
+    np.testing.assert_allclose(xz[:, :n], p.rollout(u_tilde), atol=1e-12)
+    np.testing.assert_allclose(xz[1:, n:], u_tilde, atol=1e-12)
+    np.testing.assert_allclose(rf.deviation(z.x0, v[0]), u_tilde[0])
+    # following the reference control exactly costs the command's steps of input 0, none of input 1
+    follow = np.zeros((N, n_u))
+    follow[0] = p.u_ref[0] - p.u_prev
+    follow[1:, 0] = np.diff(p.u_ref[:, 0])
+    np.testing.assert_allclose(z.rollout(follow)[1:, n:], 0.0, atol=1e-12)
+    plain = RateForm.of(p.A[0], p.B[0], p.Q, p.R, np.diag([1.0, 50.0]), p.gamma).problem(p)
+    np.testing.assert_allclose(plain.c[:, n:], 0.0)
+    assert not np.allclose(z.c, plain.c)
+
+
+def test_a_command_flag_per_input_is_asked_for():
+    rng = np.random.default_rng(3)
+    p = _problem(rng)
+    with pytest.raises(ValueError, match="one per input"):
+        RateForm.of(p.A[0], p.B[0], p.Q, p.R, np.diag([1.0, 50.0]), p.gamma, command=np.array([True]))
 
 
 def test_eb_rhrl_on_the_increment_form_is_its_finite_horizon_lqr():

@@ -299,3 +299,14 @@ def test_a_replan_leaves_along_the_course_of_a_slipping_body(straight):
     assert ctrl._course(x, ctrl._velocity(x)) == pytest.approx(0.1)
     x[names.index("vx")] = -2.0
     assert ctrl._course(x, ctrl._velocity(x)) == pytest.approx(0.1)
+
+
+def test_command_increments_name_inputs_of_the_platform():
+    assert load_params("ground").command_increments == ("a_x",)
+    assert make_vflpc(dataclasses.replace(load_scenario("carsim_avoidance"), obstacles=()))._command.tolist() == [True, False]
+    assert vflpc_params(_table({"cost": {"command_increments_ground": None}}), "ground").command_increments == ()
+    for bad in (["throttle"], ["a_x", "a_x"], [], "a_x"):
+        with pytest.raises(ConfigError, match="command_increments_ground"):
+            vflpc_params(_table({"cost": {"command_increments_ground": bad}}), "ground")
+    with pytest.raises(ConfigError, match="command_increments_aerial"):
+        vflpc_params(_table({"cost": {"command_increments_aerial": ["a_x"]}}), "aerial")
