@@ -25,8 +25,9 @@ and R_rate weighs the command's rate of change wherever it comes from. Without i
 inside the horizon costs nothing, but at the next tick u~_{-1} = u_prev - u_r,0 carries the same
 step into v_0, which R_rate then slows: the plan of one tick (follow the step) is not the next
 tick's, and the command lags a planned step instead of easing into it ahead of it (a stop planned
-at 2.5 m/s^2 from 6 m/s: the throttle began to brake as the reference did and the car stopped
-0.3 m past the goal; in the command's increments it brakes 0.75 s earlier and stops 0.1 m short).
+at 2.5 m/s^2 from 6 m/s: the throttle began to brake as the reference did, at up to 3.2 m/s^2,
+and the car stopped 0.29 m past the goal; in the command's increments it brakes 0.75 s earlier,
+at up to 2.6 m/s^2, and stops 0.16 m short of it).
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ class RateForm:
     K_terminal: np.ndarray
     gamma: float
     command: np.ndarray
+    commanded: tuple[int, ...]          # the indices of the inputs in ``command``
     _pair: list = field(default_factory=lambda: [None, None, None], compare=False, repr=False)
     _blank: dict = field(default_factory=dict, compare=False, repr=False)     # N -> _Blank
 
@@ -74,7 +76,8 @@ class RateForm:
         g = np.sqrt(gamma)
         P = sl.solve_discrete_are(g * Az, g * Bz, Qz, R_rate)
         K = np.linalg.solve(R_rate + gamma * Bz.T @ P @ Bz, gamma * Bz.T @ P @ Az)
-        return cls(n, n_u, Az, Bz, Qz, R_rate, P, K, float(gamma), command)
+        return cls(n, n_u, Az, Bz, Qz, R_rate, P, K, float(gamma), command,
+                   tuple(int(j) for j in np.flatnonzero(command)))
 
     def problem(self, p: HorizonProblem) -> HorizonProblem:
         """The increment form of problem p (module docstring); its u_ref is the previous deviation
@@ -83,11 +86,10 @@ class RateForm:
         A, B = self._augmented(p.A, p.B)
         c = np.zeros((N, n + n_u))
         c[:, :n] = p.c
-        if self.command.any():               # the reference control's steps s_tau (module docstring)
-            step = np.zeros((N, n_u))
-            step[1:, self.command] = (p.u_ref[1:] - p.u_ref[:-1])[:, self.command]
-            c[:, :n] -= np.einsum("tij,tj->ti", p.B, step)
-            c[:, n:] = -step
+        for j in self.commanded:             # the reference control's steps s_tau (module docstring)
+            u_r = p.u_ref[:, j]
+            step = np.subtract(u_r[:-1], u_r[1:], out=c[1:, n + j])           # -s_tau, tau >= 1
+            c[1:, :n] += p.B[1:, :, j] * step[:, None]
         x0 = np.empty(n + n_u)
         x0[:n] = p.x0
         np.subtract(p.u_prev, p.u_ref[0], out=x0[n:])
