@@ -26,7 +26,7 @@ inside the horizon costs nothing, but at the next tick u~_{-1} = u_prev - u_r,0 
 step into v_0, which R_rate then slows: the plan of one tick (follow the step) is not the next
 tick's, and the command lags a planned step instead of easing into it ahead of it (a stop planned
 at 2.5 m/s^2 from 6 m/s: the throttle began to brake as the reference did, at up to 3.2 m/s^2,
-and the car stopped 0.29 m past the goal; in the command's increments it brakes 0.75 s earlier,
+and the car stopped 0.29 m past the goal; in the command's increments it brakes 0.65 s earlier,
 at up to 2.6 m/s^2, and stops 0.16 m short of it).
 """
 
