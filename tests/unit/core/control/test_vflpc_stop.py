@@ -1,20 +1,12 @@
 """A stop the speed plan asks for: the throttle eases into it ahead of the reference's braking
 (its increments are the command's own, ``command_increments_ground``) and the car stops at the goal."""
 
-import numpy as np
-
-from sim.plants import make_plant
-from vflpcd.config.scenarios import line_scenario_toml, load_scenario
-from vflpcd.controllers.vflpc import make_vflpc
+from line_road import vflpc_on_a_line
 from vflpcd.core.jobs import run_inline
 
 
 def test_the_car_brakes_ahead_of_a_planned_stop_and_stops_at_the_goal(tmp_path):
-    f = tmp_path / "line.toml"
-    f.write_text(line_scenario_toml("line", length=80.0, speed=6.0, t_max=60.0))
-    sc = load_scenario(f)
-    ctl = make_vflpc(sc)
-    plant = make_plant(sc, 0)
+    sc, ctl, plant = vflpc_on_a_line(tmp_path, 80.0, 6.0)
     dt = sc.control_period
     braking = reference_braking = None
     for k in range(int(30.0 / dt)):

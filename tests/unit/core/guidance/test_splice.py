@@ -73,16 +73,10 @@ def test_after_its_end_a_reference_stands_still():
 def test_vflpc_installs_a_late_replan_where_the_robot_stands(tmp_path):
     """The robot stops at the end of its plan while a replan made 8 s earlier is still out; once
     installed, the reference goes on from where the robot waits, not 8 s down the new plan."""
-    from sim.plants import make_plant
-    from vflpcd.config.scenarios import line_scenario_toml, load_scenario
-    from vflpcd.controllers.vflpc import make_vflpc
+    from line_road import vflpc_on_a_line
     from vflpcd.core.vflpc import plan_job
 
-    f = tmp_path / "line.toml"
-    f.write_text(line_scenario_toml("line", length=150.0, speed=6.0, t_max=60.0))
-    sc = load_scenario(f)
-    ctl = make_vflpc(sc)
-    plant = make_plant(sc, 0)
+    sc, ctl, plant = vflpc_on_a_line(tmp_path, 150.0, 6.0)
     dt, job, k = sc.control_period, None, 0
     while job is None:                                  # drive until a replan is due
         ctl.step(plant.state, k * dt)
@@ -108,16 +102,10 @@ def test_vflpc_refuses_a_replan_planned_from_where_the_robot_no_longer_is(tmp_pa
     """A replan made from a point 3 m beside where the robot now drives (it was seconds old) is
     stale: set aside (no planning failure), the old plan stays, and a new one is asked from the
     present state."""
-    from sim.plants import make_plant
-    from vflpcd.config.scenarios import line_scenario_toml, load_scenario
-    from vflpcd.controllers.vflpc import make_vflpc
+    from line_road import vflpc_on_a_line
     from vflpcd.core.vflpc import ReplanJob, plan_job
 
-    f = tmp_path / "line.toml"
-    f.write_text(line_scenario_toml("line", length=150.0, speed=6.0, t_max=60.0))
-    sc = load_scenario(f)
-    ctl = make_vflpc(sc)
-    plant = make_plant(sc, 0)
+    sc, ctl, plant = vflpc_on_a_line(tmp_path, 150.0, 6.0)
     dt = sc.control_period
     for k in range(40):
         x = plant.state.copy()                          # the state the controller saw last
