@@ -655,10 +655,11 @@ class VFLPC(ControllerBase):
     def _rate_bounds(self, problem: HorizonProblem) -> tuple[np.ndarray, np.ndarray]:
         """Bounds (lo, hi) (N, n_u) on the increments v_tau of u~ that keep the command u = u_r + u~
         within the rate limit du_max at every step: u moves by v_tau + (u_r,tau - u_r,tau-1)
-        (u~_{-1} = u_prev - u_r,0, so step 0 moves it by v_0); open for an input without a limit."""
+        (u~_{-1} = u_prev - u_r,0, so step 0 moves it by v_0), by v_tau alone for an input whose v is
+        the command's own increment (``command_increments``); open for an input without a limit."""
         ref_step, lo, hi = self._rate_arrays      # written in place (no per-tick allocation)
         np.subtract(problem.u_ref[1:], problem.u_ref[:-1], out=ref_step[1:])
-        ref_step[:, self._command] = 0.0         # an input whose v is the command's own increment
+        ref_step[:, self._command] = 0.0
         du = self.limits.du_max
         np.subtract(-du, ref_step, out=lo)
         np.subtract(du, ref_step, out=hi)
