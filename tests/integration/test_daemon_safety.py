@@ -85,8 +85,13 @@ def test_a_car_that_does_not_follow_its_commands_stops(mission_file):
 
 
 def test_a_collision_is_exit_code_5_and_the_supervisor_braked_first(mission_file):
-    # a pedestrian steps out inside the stopping distance: the supervisor brakes, contact follows
-    result = run_mission(load_mission(mission_file(route="safety/pedestrian_close", rate_hz=RATE, hold=0.5)))
+    # a pedestrian steps out inside the stopping distance: the supervisor brakes, contact follows.
+    # The response monitor's tolerance at 3 m/s^2, not 1.5: in a CI run (two cores, three test
+    # workers) the in-process vehicle applied the supervisor's -6 m/s^2 about 0.26 s late, and 0.65 s
+    # into the braking the monitor read -2.32 against -3.9 and latched `unresponsive` before the
+    # contact (unloaded, the two stay within 0.16 m/s^2); the monitor has its own test above.
+    result = run_mission(load_mission(mission_file(route="safety/pedestrian_close", rate_hz=RATE, hold=0.5,
+                                                   extra="[safety]\nresponse_accel_tol = 3.0\n")))
     event = assert_failsafe(result, "collision", code=5)
     log = read_flight_log(result.log_path)
     brakes = [e for e in log.events if e.kind == "supervisor_brake"]
