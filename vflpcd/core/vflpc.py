@@ -659,7 +659,8 @@ class VFLPC(ControllerBase):
         the command's own increment (``command_increments``); open for an input without a limit."""
         ref_step, lo, hi = self._rate_arrays      # written in place (no per-tick allocation)
         np.subtract(problem.u_ref[1:], problem.u_ref[:-1], out=ref_step[1:])
-        ref_step[:, self._command] = 0.0
+        for j in self.rate.commanded:
+            ref_step[:, j] = 0.0
         du = self.limits.du_max
         np.subtract(-du, ref_step, out=lo)
         np.subtract(du, ref_step, out=hi)

@@ -44,8 +44,9 @@ from vflpcd.core.control.problem import HorizonProblem
 class RateForm:
     """The nominal increment-form matrices of an error model with A (n, n), B (n, n_u), Q, R,
     discount gamma and increment weight R_rate (n_u, n_u): A, B, Q, R (= R_rate), P (DARE) and the
-    terminal LQR gain K_terminal (n_u, n + n_u); ``command`` (n_u,) bool: the inputs whose
-    increment is the command's own (module docstring)."""
+    terminal LQR gain K_terminal (n_u, n + n_u); ``commanded``: the indices of the inputs whose
+    increment is the command's own (module docstring; ``of`` takes them as ``command``, one flag
+    per input)."""
 
     n: int
     n_u: int
@@ -56,8 +57,7 @@ class RateForm:
     P: np.ndarray
     K_terminal: np.ndarray
     gamma: float
-    command: np.ndarray
-    commanded: tuple[int, ...]          # the indices of the inputs in ``command``
+    commanded: tuple[int, ...]
     _pair: list = field(default_factory=lambda: [None, None, None], compare=False, repr=False)
     _blank: dict = field(default_factory=dict, compare=False, repr=False)     # N -> _Blank
 
@@ -76,8 +76,7 @@ class RateForm:
         g = np.sqrt(gamma)
         P = sl.solve_discrete_are(g * Az, g * Bz, Qz, R_rate)
         K = np.linalg.solve(R_rate + gamma * Bz.T @ P @ Bz, gamma * Bz.T @ P @ Az)
-        return cls(n, n_u, Az, Bz, Qz, R_rate, P, K, float(gamma), command,
-                   tuple(int(j) for j in np.flatnonzero(command)))
+        return cls(n, n_u, Az, Bz, Qz, R_rate, P, K, float(gamma), tuple(int(j) for j in np.flatnonzero(command)))
 
     def problem(self, p: HorizonProblem) -> HorizonProblem:
         """The increment form of problem p (module docstring); its u_ref is the previous deviation
