@@ -152,6 +152,11 @@ def test_sigterm_brakes_the_can_vehicle_to_a_standstill_before_the_daemon_exits(
     assert text.count("ws://127.0.0.1:54701/") == 1
     text = text.replace("ws://127.0.0.1:54701/", f"ws://127.0.0.1:{hub_port}/")
     text = text.replace("enabled = true", "enabled = false").replace('dir = "logs"', f'dir = "{tmp_path / "logs"}"')
+    # the link timeout at 0.25 s and the stale-state age above it, as in test_can_vehicle_sitl's
+    # missions: a CI-like run here lost INS frames for 0.1 s through the hub at t = 1.5 s
+    assert text.count("state_timeout = 0.1 ") == 1 and text.count("state_max_age = 0.2\n") == 1
+    text = text.replace("state_timeout = 0.1 ", "state_timeout = 0.25 ").replace("state_max_age = 0.2\n",
+                                                                                 "state_max_age = 0.3\n")
     mission = tmp_path / "vehicle_can.toml"
     mission.write_text(text)
     daemon = Session(tmp_path, "run", str(mission), "--with-sitl")
