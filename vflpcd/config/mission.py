@@ -69,7 +69,8 @@ def load_mission(path: str | Path) -> Mission:
 
     route = root.table("route")
     route.check_known({"scenario"})
-    scenario = load_scenario(_find(route.string("scenario"), file, "scenarios", ".toml", route, "scenario"))
+    scenario = load_scenario(_find(route.string("scenario"), file, "scenarios", ".toml", route, "scenario"),
+                             stop_at_goal=True)       # a mission ends at rest at its goal
 
     plat = root.table("platform")
     kind = plat.string("kind", choices=tuple(PLATFORM_KINDS))

@@ -28,6 +28,7 @@ from vflpcd.base.tomlread import Table, load_table
 
 PLATFORMS = {"ground": ("dynamic_bicycle", 2, 2), "aerial": ("quadrotor", 3, 3)}  # plant, dim, n_u
 TRIGGERS = ("always", "move", "appear")
+RUN_ON_TIME = 3.0   # s at the desired speed beyond the braking distance that a goal passed at speed runs on
 
 
 @dataclass(frozen=True)
@@ -69,6 +70,8 @@ class Scenario:
     control_period: float
     t_max: float
     goal_tolerance: float
+    goal_at: float              # arc length of the goal along ``path``: its given end, before any run-on
+    stop_at_goal: bool
     laps: int
     obstacles: tuple[ObstacleSpec, ...]
     weights: MetricWeights
@@ -80,7 +83,7 @@ class Scenario:
         """Arc length the robot must cover to complete the run (m)."""
         if self.path.closed:
             return self.laps * self.path.length
-        return self.path.length - self.goal_tolerance
+        return self.goal_at - self.goal_tolerance
 
 
 def scenario_file(name_or_path: str | Path) -> Path:
@@ -95,8 +98,18 @@ def available_scenarios() -> list[str]:
     return sorted(p.stem for p in (config_dir() / "scenarios").glob("*.toml"))
 
 
-def load_scenario(name_or_path: str | Path) -> Scenario:
-    """Load and validate a scenario; raises ConfigError naming the file and field."""
+def run_on_length(v_desired: float, a_decel: float) -> float:
+    """The straight (m) an open path runs on past a goal that is passed at speed: the braking
+    distance v_d^2 / (2 a_decel) of the speed plan's stop at the end of the road, plus
+    ``RUN_ON_TIME`` s at v_d (a horizon controller's 1 s horizon, the replan margin of 1 s before
+    a plan runs out, and the lead with which the throttle eases into a planned stop), so that
+    nothing brakes for the end of the road before the goal."""
+    return v_desired * v_desired / (2.0 * a_decel) + RUN_ON_TIME * v_desired
+
+
+def load_scenario(name_or_path: str | Path, stop_at_goal: bool | None = None) -> Scenario:
+    """Load and validate a scenario; raises ConfigError naming the file and field. ``stop_at_goal``
+    overrides the file's ``[goal] stop`` (a mission ends at rest at its goal)."""
     file = scenario_file(name_or_path)
     if not file.exists():
         raise ConfigError(file, "<file>", f"no such scenario (available: {', '.join(available_scenarios())})")
@@ -133,7 +146,8 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     spd = root.table("speed")
     spd.check_known({"desired", "a_lat_max"})
     goal = root.table("goal", {})
-    goal.check_known({"tolerance", "laps"})
+    goal.check_known({"tolerance", "laps", "stop"})
+    stop = goal.boolean("stop", False) if stop_at_goal is None else bool(stop_at_goal)
     metrics = root.table("metrics")
     metrics.check_known({"q1", "q2", "R"})
     R = metrics.matrix("R", n_u)
@@ -146,17 +160,23 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         if ids.index(oid) != i:
             raise ConfigError(file, f"obstacles[{i}].id", f"duplicate id {oid!r}")
 
+    guidance = guidance_params(root.table("guidance", {}), default_guidance())
+    v_desired = spd.number("desired", positive=True)
+    goal_at = path.length
+    if not (stop or path.closed):
+        path = path.run_on(run_on_length(v_desired, guidance.a_decel))
+
     scenario = Scenario(
         name=root.string("name"), file=file, description=root.string("description", ""),
         platform=platform, plant=plant, params=params,
         process_noise=veh.boolean("process_noise", False), dim=dim, path=path, start=start,
-        v_desired=spd.number("desired", positive=True), a_lat_max=spd.number("a_lat_max", positive=True),
+        v_desired=v_desired, a_lat_max=spd.number("a_lat_max", positive=True),
         control_period=root.number("control_period", positive=True, max=1.0),
         t_max=root.number("t_max", positive=True),
-        goal_tolerance=goal.number("tolerance", 1.0, positive=True),
+        goal_tolerance=goal.number("tolerance", 1.0, positive=True), goal_at=goal_at, stop_at_goal=stop,
         laps=goal.integer("laps", 1, min=1), obstacles=obstacles,
         weights=MetricWeights(q1=metrics.number("q1", min=0.0), q2=metrics.number("q2", min=0.0), R=R),
-        footprint=footprint, guidance=guidance_params(root.table("guidance", {}), default_guidance()))
+        footprint=footprint, guidance=guidance)
     _check_start_is_free(scenario)
     return scenario
 
@@ -269,6 +289,7 @@ desired = {speed}
 a_lat_max = {a_lat_max}
 [goal]
 tolerance = 1.0
+stop = {stop}
 [metrics]
 q1 = 1.0
 q2 = 1.0
@@ -278,8 +299,9 @@ R = [[0.1, 0.0], [0.0, 1.0]]
 
 
 def line_scenario_toml(name: str, *, length: float = 60.0, y0: float = 0.0, speed: float = 5.0,
-                       a_lat_max: float = 3.0, t_max: float = 20.0, obstacles: str = "") -> str:
+                       a_lat_max: float = 3.0, t_max: float = 20.0, obstacles: str = "", stop: bool = False) -> str:
     """TOML of a ground scenario on the straight road (0, 0) -> (length, 0) with the car starting
-    y0 beside it; ``obstacles`` is TOML text of [[obstacles]] tables (tests and `bench variants`)."""
+    y0 beside it, its goal at the road's end (``stop``: at rest there, else passed at speed);
+    ``obstacles`` is TOML text of [[obstacles]] tables (tests and `bench variants`)."""
     return LINE_TOML.format(name=name, length=length, y0=y0, speed=speed, a_lat_max=a_lat_max, t_max=t_max,
-                            obstacles=obstacles)
+                            obstacles=obstacles, stop=str(bool(stop)).lower())

@@ -656,7 +656,7 @@ def _result(q: _Query, i: int, shot: DubinsPath | None, X, Y, TH, PARENT, STEER,
 def plan_scenario(scenario, params: HybridAStarParams | None = None) -> HybridAStarResult:
     """The standard query on a ground scenario (``vflpcd.config.scenarios.Scenario`` or its name).
 
-    start = scenario.start[:3]; goal = the path's end with the path's heading there; bounds =
+    start = scenario.start[:3]; goal = the scenario's goal with the path's heading there; bounds =
     the path's bounding box grown by ``params.bounds_padding``; obstacles = the scenario's
     obstacles at their initial poses; vehicle = the scenario's bicycle parameter set.
     """
@@ -670,8 +670,8 @@ def plan_scenario(scenario, params: HybridAStarParams | None = None) -> HybridAS
     bike = BicycleConfig.load(sc.params)
     pts, pad = sc.path.points, params.bounds_padding
     bounds = (pts[:, 0].min() - pad, pts[:, 0].max() + pad, pts[:, 1].min() - pad, pts[:, 1].max() + pad)
-    end = sc.path.point_at(sc.path.length)
-    goal = np.array([end[0], end[1], float(sc.path.heading_at(sc.path.length))])
+    end = sc.path.point_at(sc.goal_at)
+    goal = np.array([end[0], end[1], float(sc.path.heading_at(sc.goal_at))])
     obstacles = [(o.shape, o.center, o.yaw) for o in sc.obstacles]
     return plan_hybrid_astar(sc.start[:3], goal, obstacles, sc.footprint, bike.params.wheelbase, bike.params.lr,
                              bike.limits.delta_max, bounds, params)

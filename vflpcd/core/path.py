@@ -114,6 +114,17 @@ class ReferencePath:
         pts = np.asarray(center, float) + radius * np.column_stack([np.cos(a), np.sin(a)])
         return cls(pts[:-1] if full else pts, closed=full)
 
+    def run_on(self, length: float, ds: float = 0.1) -> "ReferencePath":
+        """This open path followed by a straight of ``length`` m along its end tangent (the road going
+        on past its end); the points up to the end are this path's own, so arc lengths there agree."""
+        if self.closed:
+            raise ValueError("a closed path has no end to run on from")
+        if not length > 0.0:
+            raise ValueError(f"a run-on is a positive length, got {length!r}")
+        n = max(int(np.ceil(length / ds)), 1)
+        steps = np.arange(1, n + 1) * (length / n)
+        return ReferencePath(np.vstack([self.points, self.points[-1] + steps[:, None] * self.tangents[-1]]))
+
     # ------------------------------------------------------------------ queries
     def _curvature(self) -> np.ndarray:
         """Curvature from the turn of neighbouring tangents per arc length (signed, left positive, in 2-D)."""

@@ -157,3 +157,25 @@ def test_anchors_lie_on_the_path_and_bend_as_it_does():
     assert np.allclose(menger_curvature(anchors)[1:-1], 1.0 / 24.0, rtol=0.05)
     s = feet_arc_lengths(pts, chords, np.arange(0.0, path.length, 0.5))
     assert np.allclose(path.point_at(s), anchors)
+
+
+def test_a_run_on_continues_the_end_tangent_and_keeps_the_path_before_it():
+    bend = ReferencePath.arc([0.0, 0.0], 10.0, 0.0, np.pi / 2)
+    longer = bend.run_on(5.0)
+    assert not longer.closed and longer.length == pytest.approx(bend.length + 5.0, abs=1e-9)
+    np.testing.assert_array_equal(longer.points[: len(bend.points)], bend.points)
+    np.testing.assert_allclose(longer.s[: len(bend.s)], bend.s, atol=1e-12)
+    end, tangent = bend.points[-1], bend.tangents[-1]
+    beyond = longer.points[len(bend.points):]
+    rel = beyond - end
+    np.testing.assert_allclose(rel[:, 0] * tangent[1] - rel[:, 1] * tangent[0], 0.0, atol=1e-12)   # on the end tangent
+    assert longer.point_at(longer.length) == pytest.approx(end + 5.0 * tangent, abs=1e-9)
+    assert longer.curvature_at(bend.length + 2.5) == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("length", [0.0, -1.0, float("nan")])
+def test_a_run_on_is_a_positive_length_from_an_open_path(length):
+    with pytest.raises(ValueError, match="positive length"):
+        ReferencePath.line([0.0, 0.0], [3.0, 0.0]).run_on(length)
+    with pytest.raises(ValueError, match="closed path"):
+        ReferencePath.arc([0.0, 0.0], 5.0, 0.0, 2 * np.pi).run_on(1.0)

@@ -67,7 +67,7 @@ def test_every_suite_scene_loads_fairly_and_leaves_the_start_free(name):
     assert sc.name == name and sc.description and "\n" not in sc.description
     assert (sc.platform, sc.plant, sc.params, sc.control_period) == ("ground", "dynamic_bicycle", "nominal", 0.05)
     assert 1.5 <= sc.v_desired <= 8.0
-    assert sc.t_max >= math.floor(2 * sc.path.length / sc.v_desired + 10.0)
+    assert sc.t_max >= math.floor(2 * sc.goal_at / sc.v_desired + 10.0)
     assert (sc.weights.q1, sc.weights.q2) == (1.0, 1.0) and np.allclose(sc.weights.R, [[0.1, 0.0], [0.0, 1.0]])
     position, yaw = sc.start[:2], sc.start[2]
     for o in sc.obstacles:

@@ -114,7 +114,7 @@ def test_dense_static_path_is_found_and_collision_free(dense):
     assert path.shape[1] == 3 and path.dtype == np.float64 and len(path) > 100
     assert np.all(np.abs(path[:, 2]) <= math.pi)
     np.testing.assert_allclose(path[0], scenario.start[:3], atol=1e-9)
-    goal = np.r_[scenario.path.point_at(scenario.path.length), 0.0]
+    goal = np.r_[scenario.path.point_at(scenario.goal_at), 0.0]
     assert np.hypot(*(path[-1, :2] - goal[:2])) <= PARAMS.goal_tolerance
     assert abs(wrap_angle(path[-1, 2] - goal[2])) <= PARAMS.goal_heading_tolerance
     # clearance of the real footprint (its exact rectangle) to every obstacle at every sample
@@ -127,7 +127,7 @@ def test_dense_static_path_is_found_and_collision_free(dense):
     assert np.all(path[:, 1] >= pts[:, 1].min() - pad) and np.all(path[:, 1] <= pts[:, 1].max() + pad)
     # the reported length is the CoG path's length
     assert res.length == pytest.approx(np.sum(np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1)), rel=1e-3)
-    assert res.length >= scenario.path.length
+    assert res.length >= scenario.goal_at
 
 
 def test_dense_static_path_is_drivable_forward(dense):

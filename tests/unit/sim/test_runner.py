@@ -129,3 +129,16 @@ def test_footprint_clearance_is_exact_for_a_rectangle():
     assert fp.clearance(Box(0.2, 0.2), np.array([1.0, 0.5]), 0.0, np.zeros(2), 0.0) == pytest.approx(-0.6)  # inside
     assert np.all(np.linalg.norm(fp.outline[:, None, :] - fp.offsets[None, :, None] * [1, 0], axis=2).min(axis=1)
                   <= fp.radius + 1e-12)                                          # the discs cover the body
+
+
+@pytest.mark.parametrize("stop", [False, True])
+def test_vflpc_passes_a_goal_on_a_road_that_goes_on_and_slows_for_one_that_is_a_stop(line_scenario, stop):
+    s = line_scenario("goal", length=40.0, speed=5.0, t_max=30.0, stop=stop)
+    rec = run_closed_loop(s, make_controller("vflpc", s))
+    assert rec.outcome == "completed"
+    speed = np.linalg.norm(rec.velocity, axis=1)
+    ok = np.all(np.isfinite(rec.applied), axis=1)
+    if stop:            # braking for the end of the road: well below the cruise speed at the goal
+        assert speed[-1] < 0.7 * s.v_desired and rec.applied[ok, 0].min() < -1.0
+    else:               # the same cruise to the goal, nothing braked for
+        assert speed[-1] == pytest.approx(s.v_desired, abs=0.1) and rec.applied[ok, 0].min() > -0.3

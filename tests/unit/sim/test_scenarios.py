@@ -18,9 +18,9 @@ def test_shipped_scenarios_load():
     names = available_scenarios()
     assert {"dense_static", "carsim_avoidance", "racing_track", "uav_3d"} <= set(names)
     dense = load_scenario("dense_static")
-    assert 45.0 <= dense.path.length <= 50.0 and len(dense.obstacles) >= 6
+    assert 45.0 <= dense.goal_at <= 50.0 and len(dense.obstacles) >= 6
     carsim = load_scenario("carsim_avoidance")
-    assert carsim.path.length == pytest.approx(250.0, abs=5.0)
+    assert carsim.goal_at == pytest.approx(250.0, abs=5.0)
     assert carsim.v_desired == pytest.approx(25 / 3.6, rel=1e-3)
     triggers = {o.trigger for o in carsim.obstacles}
     assert {"always", "move"} <= triggers
@@ -59,6 +59,7 @@ CASES = {
     "trigger without distance": (BASE.replace('yaw = 0.3\n', 'yaw = 0.3\ntrigger = "move"\n', 1),
                                  "obstacles[1].trigger_distance", "missing"),
     "bad TOML": (BASE + "\n[[[", "<syntax>", "not valid TOML"),
+    "goal stop not a boolean": (BASE.replace("[goal]", '[goal]\nstop = "yes"'), "goal.stop", "expected"),
 }
 
 
@@ -101,7 +102,7 @@ def test_waypoint_file_is_read_relative_to_the_scenario(tmp_path):
     f = write(tmp_path, BASE.replace('kind = "line"\nstart = [0.0, 0.0]\nend = [47.0, 0.0]',
                                      'kind = "waypoints"\nfile = "wp.csv"'))
     s = load_scenario(f)
-    assert s.path.length == pytest.approx(47.0, rel=1e-6)
+    assert s.goal_at == pytest.approx(47.0, rel=1e-6)
     (tmp_path / "wp.csv").write_text("0,0,0\n1,1,1\n")
     with pytest.raises(ConfigError, match="path.file"):
         load_scenario(f)
@@ -123,3 +124,28 @@ def test_obstacle_triggers():
     snap = world.snapshot(4.0)
     assert len(snap) == 1 and np.allclose(snap[0].center, drone.center + drone.velocity)
     assert snap[0].center_at(5.0) == pytest.approx(drone.center + 2 * drone.velocity)
+
+
+def test_an_open_road_runs_on_past_its_goal_unless_the_goal_is_a_stop(tmp_path):
+    from vflpcd.config.scenarios import line_scenario_toml, run_on_length
+
+    passed = load_scenario(write(tmp_path, line_scenario_toml("through", length=40.0, speed=5.0), "through.toml"))
+    a_decel = passed.guidance.a_decel
+    assert not passed.stop_at_goal and passed.goal_at == pytest.approx(40.0, abs=1e-9)
+    assert run_on_length(5.0, a_decel) == pytest.approx(25.0 / (2 * a_decel) + 3.0 * 5.0)
+    assert passed.path.length == pytest.approx(40.0 + run_on_length(5.0, a_decel), abs=1e-9)
+    assert passed.goal_progress == pytest.approx(39.0, abs=1e-9)          # the goal's place, not the road's end
+    stop = load_scenario(write(tmp_path, line_scenario_toml("stop", length=40.0, speed=5.0, stop=True), "stop.toml"))
+    assert stop.stop_at_goal and stop.path.length == pytest.approx(40.0, abs=1e-9) and stop.goal_progress == 39.0
+    assert load_scenario(tmp_path / "through.toml", stop_at_goal=True).path.length == pytest.approx(40.0, abs=1e-9)
+    track = load_scenario("racing_track")                                  # a closed path has no end
+    assert track.path.closed and track.goal_progress == pytest.approx(track.path.length)
+
+
+def test_a_mission_ends_at_rest_on_its_route_s_goal():
+    from vflpcd.config.mission import load_mission
+
+    mission = load_mission(config_dir() / "missions" / "vehicle_inproc.toml")
+    assert mission.scenario.stop_at_goal
+    assert mission.scenario.path.length == pytest.approx(mission.scenario.goal_at, abs=1e-9)
+    assert load_scenario(mission.scenario.file).path.length > mission.scenario.goal_at + 10.0

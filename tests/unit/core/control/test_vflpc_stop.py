@@ -6,7 +6,7 @@ from vflpcd.core.jobs import run_inline
 
 
 def test_the_car_brakes_ahead_of_a_planned_stop_and_stops_at_the_goal(tmp_path):
-    sc, ctl, plant = vflpc_on_a_line(tmp_path, 80.0, 6.0)
+    sc, ctl, plant = vflpc_on_a_line(tmp_path, 80.0, 6.0, stop=True)
     dt = sc.control_period
     vx = ctl.model.state_names.index("vx")
     braking = reference_braking = None

@@ -35,7 +35,7 @@ def test_path_surfaces_gradients_match_finite_differences():
 
 @pytest.fixture(scope="module")
 def uav():
-    return load_scenario("uav_3d")
+    return load_scenario("uav_3d", stop_at_goal=True)      # the route as drawn, ending at its goal
 
 
 def test_on_the_path_the_field_is_the_unit_forward_tangent(uav):
