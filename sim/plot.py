@@ -78,6 +78,10 @@ def plot_run(record: RunRecord, scenario: Scenario, out: str | Path) -> Path:
 def _draw_map(ax, record: RunRecord, scenario: Scenario) -> None:
     path = scenario.path.points
     ax.plot(path[:, 0], path[:, 1], color="k", lw=0.8, label="reference path")
+    if not scenario.path.closed:
+        goal = scenario.path.point_at(scenario.goal_at)
+        ax.plot(goal[0], goal[1], marker="|", ms=14, mew=2, color="k", ls="none",
+                label="goal" if scenario.stop_at_goal else "goal (the road goes on)")
     n_frames = 6
     frames = np.linspace(0, len(record.t) - 1, n_frames).astype(int)
     for j, o in enumerate(scenario.obstacles):

@@ -148,6 +148,8 @@ def load_scenario(name_or_path: str | Path, stop_at_goal: bool | None = None) ->
     goal = root.table("goal", {})
     goal.check_known({"tolerance", "laps", "stop"})
     stop = goal.boolean("stop", False) if stop_at_goal is None else bool(stop_at_goal)
+    if path.closed and goal.has("stop"):
+        raise goal.error("stop", "a closed path has no end to stop at or run on from (laps counts its rounds)")
     metrics = root.table("metrics")
     metrics.check_known({"q1", "q2", "R"})
     R = metrics.matrix("R", n_u)

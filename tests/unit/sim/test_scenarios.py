@@ -60,6 +60,10 @@ CASES = {
                                  "obstacles[1].trigger_distance", "missing"),
     "bad TOML": (BASE + "\n[[[", "<syntax>", "not valid TOML"),
     "goal stop not a boolean": (BASE.replace("[goal]", '[goal]\nstop = "yes"'), "goal.stop", "expected"),
+    "goal stop on a closed path": (BASE.replace('kind = "line"\nstart = [0.0, 0.0]\nend = [47.0, 0.0]',
+                                                'kind = "waypoints"\npoints = [[0.0, 0.0], [47.0, 0.0], [47.0, 30.0]]\n'
+                                                'closed = true').replace("[goal]", "[goal]\nstop = false"),
+                                   "goal.stop", "closed path has no end"),
 }
 
 
