@@ -70,7 +70,7 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
             raise
     cost.check_known({"q_ground", "r_ground", "r_rate_ground", "q_aerial", "r_aerial", "r_rate_aerial", "q_lift",
                       "gamma", "r_rate_threat_ground", "r_rate_threat_aerial",
-                      "r_rate_light_ground", "r_rate_light_aerial", "light_hold", "light_speeds",
+                      "r_rate_light_ground", "r_rate_light_aerial", "light_hold", "light_speeds", "light_offsets",
                       "command_increments_ground", "command_increments_aerial"})
     hor.check_known({"seconds"})
     sol.check_known({"i_max", "tol", "eta_a", "divergence"})
@@ -97,6 +97,9 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
     light_speeds = cost.vector("light_speeds", 2) if cost.has("light_speeds") else np.array([0.0, np.inf])
     if not (0.0 <= light_speeds[0] < light_speeds[1]):
         raise cost.error("light_speeds", f"expected [low, high] m/s with 0 <= low < high, got {light_speeds.tolist()}")
+    light_offsets = cost.vector("light_offsets", 2) if cost.has("light_offsets") else np.array([np.inf, np.inf])
+    if not (0.0 < light_offsets[0] <= light_offsets[1]):
+        raise cost.error("light_offsets", f"expected [take up, keep] m with 0 < take up <= keep, got {light_offsets.tolist()}")
     gamma = cost.number("gamma", min=0.0)
     if not (0.0 < gamma <= 1.0):
         raise cost.error("gamma", f"must lie in (0, 1], got {gamma}")
@@ -131,6 +134,7 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
                R_rate_light=None if r_light is None else np.diag(r_light),
                light_hold=cost.number("light_hold", 2.0, min=0.0),
                light_speeds=(float(light_speeds[0]), float(light_speeds[1])),
+               light_offsets=(float(light_offsets[0]), float(light_offsets[1])),
                command_increments=(cost.strings(f"command_increments_{platform}", choices=_inputs(platform))
                                    if cost.has(f"command_increments_{platform}") else ()),
                vehicle_params=vehicle_params)

@@ -164,6 +164,7 @@ class VFLPCParams:
     R_rate_light: np.ndarray | None = None
     light_hold: float = 2.0
     light_speeds: tuple[float, float] = (0.0, np.inf)
+    light_offsets: tuple[float, float] = (np.inf, np.inf)
     command_increments: tuple[str, ...] = ()
     gp_channels: tuple[str, ...] = ("Y", "psi", "vx", "vy", "omega")
     gp_ell: float = 3.0
@@ -376,7 +377,7 @@ class VFLPC(ControllerBase):
         barrier = self._barrier(frame, ref, pos, vel, t, obstacles)
         self._select_mode()
         if self.rate is not None:
-            u_tilde0 = self._solve_increments(problem, barrier, t, vel)
+            u_tilde0 = self._solve_increments(problem, barrier, t, vel, self._offset(frame))
         else:
             u_tilde0 = self._solve(problem, barrier, self.errors.K_terminal)
         u = problem.u_ref[0] + u_tilde0
@@ -619,11 +620,21 @@ class VFLPC(ControllerBase):
         self.rate, self.solver = self._threat_mode if threatened else self._cruise_mode
         self.solver.reset()
 
+    def _offset(self, frame: TickFrame) -> float:
+        """How far the reference at the tick lies from the robot (m): across a car's heading (its
+        window frame's second axis), else the distance."""
+        rel = frame.x_r[0, self._pos_index]
+        return abs(float(rel[1])) if self.errors.layout.kind == "planar" else vector_norm(rel)
+
     def _solve_increments(self, problem: HorizonProblem, barrier: HorizonBarrier, t: float,
-                          velocity: np.ndarray) -> np.ndarray:
+                          velocity: np.ndarray, offset: float) -> np.ndarray:
         """u~_0 from the increment form of ``problem`` (rate.py) in the tick's mode. Cruising with
         ``R_rate_light`` given, at a speed (of ``velocity``, world) within ``light_speeds`` (where the
-        model's steering response is close to the vehicle's), the light weights are tried first,
+        model's steering response is close to the vehicle's) and on the reference (``offset``, m,
+        within the first of ``light_offsets`` to take the light weights up, within the second to
+        keep them: they track tightly, and a car brought back from a swerve by them, 0.16 m off
+        the road behind a crossing pedestrian, swung across it for 5 s at +-0.15 rad before it
+        settled), the light weights are tried first,
         their increments bounded by the actuator's rate limit (``_rate_bounds``: the solver clips
         its rollout and projects its targets onto them); their plan is kept unless it rides that
         limit at more than ``LIGHT_SATURATION`` of the horizon's steps (a manoeuvre the light
@@ -634,8 +645,9 @@ class VFLPC(ControllerBase):
         without bounds from asking for steps the actuator cannot make (rate.py: the loop then
         oscillates behind the rate clip)."""
         lo, hi = self.params.light_speeds
+        near = offset <= self.params.light_offsets[1 if self._light else 0]
         light = (self._light_mode is not None and not self._threatened and t >= self._heavy_until
-                 and lo <= vector_norm(velocity) <= hi)
+                 and lo <= vector_norm(velocity) <= hi and near)
         if light:
             rate, solver = self._light_mode
             if not self._light:

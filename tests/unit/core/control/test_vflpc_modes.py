@@ -262,6 +262,47 @@ def test_light_weights_need_the_cruise_weights_and_a_speed_band():
             vflpc_params(_table({"cost": {"light_speeds": bad}}), "ground")
 
 
+def test_light_weights_are_taken_up_on_the_reference_and_kept_near_it(straight):
+    """A car on the light weights slid 0.3 m off its reference: the heavy weights bring it back, the
+    light ones are taken up again only within light_offsets[0] of the reference and never kept
+    beyond light_offsets[1]."""
+    enter, leave = load_params("ground").light_offsets
+    assert (enter, leave) == (0.05, 0.15)
+    ctrl = make_vflpc(straight)
+    plant = make_plant(straight, 0)
+    seen = []
+    real = ctrl._solve_increments
+
+    def recorded(problem, barrier, t, velocity, offset):
+        was = ctrl._light
+        u = real(problem, barrier, t, velocity, offset)
+        seen.append((offset, was, ctrl._light))
+        return u
+
+    ctrl._solve_increments = recorded
+    for k in range(110):
+        if k == 30:
+            assert ctrl._light
+            slid = plant.state
+            slid[1] += 0.3
+            plant.reset(slid)
+        plant.step(ctrl.step(plant.state, k * DT), DT)
+    after = seen[30:]
+    assert after[0][0] == pytest.approx(0.3, abs=0.02) and not after[0][2]     # dropped at once
+    taken = [o for o, was, now in after if now and not was]
+    assert taken and max(taken) <= enter                       # taken up again only on the reference
+    assert all(o <= leave for o, was, now in seen if now)      # never kept beyond the second
+    assert after[-1][2] and after[-1][0] < enter
+
+
+def test_light_offsets_are_a_take_up_within_a_keep():
+    assert vflpc_params(_table({"cost": {"light_offsets": None}}), "ground").light_offsets == (np.inf, np.inf)
+    assert vflpc_params(_table({"cost": {"light_offsets": [0.1, 0.1]}}), "ground").light_offsets == (0.1, 0.1)
+    for bad in ([0.15, 0.05], [0.0, 0.1], [-0.1, 0.1], [0.05]):
+        with pytest.raises(ConfigError, match="light_offsets"):
+            vflpc_params(_table({"cost": {"light_offsets": bad}}), "ground")
+
+
 def test_light_weights_only_within_their_speed_band(straight, monkeypatch):
     """At 25 km/h (6.9 m/s) on the straight: within [4, 9] m/s the light weights are tried and kept;
     with a band the car's speed lies below they are never tried."""
