@@ -60,7 +60,7 @@ def cmd_bench_guidance(args) -> int:
     from sim.bench.guidance import bench_guidance
     from vflpcd.config.scenarios import load_scenario
 
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(args.scenario, stop_at_goal=True)     # both planners' query ends at the goal
     if scenario.platform != "ground":
         raise ConfigError("command line", "--scenario", f"the planning comparison needs a ground scenario, "
                           f"{scenario.name!r} is {scenario.platform}")

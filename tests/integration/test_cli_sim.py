@@ -69,7 +69,7 @@ def test_bench_guidance_prints_the_planning_table_and_writes_json_and_png(tmp_pa
     assert gvf["reached_goal"] and astar["success"]
     assert gvf["t_cal_runs"] == 3 and gvf["grid_precompute_median"] > 0
     assert gvf["max_v2_kappa_over_a_max"] <= 1.01
-    assert 45.0 < gvf["L_p"] < 60.0 and 45.0 < astar["L_p"] < 60.0
+    assert 45.0 < gvf["L_p"] < 52.0 and 45.0 < astar["L_p"] < 52.0       # both to the goal at 47 m
     assert (tmp_path / "bench_guidance.png").read_bytes()[:4] == b"\x89PNG"
 
 
