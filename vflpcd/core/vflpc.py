@@ -377,7 +377,7 @@ class VFLPC(ControllerBase):
         barrier = self._barrier(frame, ref, pos, vel, t, obstacles)
         self._select_mode()
         if self.rate is not None:
-            u_tilde0 = self._solve_increments(problem, barrier, t, vel, self._offset(frame))
+            u_tilde0 = self._solve_increments(problem, barrier, t, vel, frame)
         else:
             u_tilde0 = self._solve(problem, barrier, self.errors.K_terminal)
         u = problem.u_ref[0] + u_tilde0
@@ -623,15 +623,16 @@ class VFLPC(ControllerBase):
     def _offset(self, frame: TickFrame) -> float:
         """How far the reference at the tick lies from the robot (m): across a car's heading (its
         window frame's second axis), else the distance."""
-        rel = frame.x_r[0, self._pos_index]
-        return abs(float(rel[1])) if self.errors.layout.kind == "planar" else vector_norm(rel)
+        if self.errors.layout.kind == "planar":
+            return abs(float(frame.x_r[0, self._pos_index[1]]))
+        return vector_norm(frame.x_r[0, self._pos_index])
 
     def _solve_increments(self, problem: HorizonProblem, barrier: HorizonBarrier, t: float,
-                          velocity: np.ndarray, offset: float) -> np.ndarray:
+                          velocity: np.ndarray, frame: TickFrame) -> np.ndarray:
         """u~_0 from the increment form of ``problem`` (rate.py) in the tick's mode. Cruising with
         ``R_rate_light`` given, at a speed (of ``velocity``, world) within ``light_speeds`` (where the
-        model's steering response is close to the vehicle's) and on the reference (``offset``, m,
-        within the first of ``light_offsets`` to take the light weights up, within the second to
+        model's steering response is close to the vehicle's) and on the reference (``_offset`` of
+        ``frame``, within the first of ``light_offsets`` to take the light weights up, within the second to
         keep them: they track tightly, and a car brought back from a swerve by them, 0.16 m off
         the road behind a crossing pedestrian, swung across it for 5 s at +-0.15 rad before it
         settled), the light weights are tried first,
@@ -645,9 +646,9 @@ class VFLPC(ControllerBase):
         without bounds from asking for steps the actuator cannot make (rate.py: the loop then
         oscillates behind the rate clip)."""
         lo, hi = self.params.light_speeds
-        near = offset <= self.params.light_offsets[1 if self._light else 0]
         light = (self._light_mode is not None and not self._threatened and t >= self._heavy_until
-                 and lo <= vector_norm(velocity) <= hi and near)
+                 and lo <= vector_norm(velocity) <= hi
+                 and self._offset(frame) <= self.params.light_offsets[1 if self._light else 0])
         if light:
             rate, solver = self._light_mode
             if not self._light:

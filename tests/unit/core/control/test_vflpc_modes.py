@@ -273,10 +273,10 @@ def test_light_weights_are_taken_up_on_the_reference_and_kept_near_it(straight):
     seen = []
     real = ctrl._solve_increments
 
-    def recorded(problem, barrier, t, velocity, offset):
+    def recorded(problem, barrier, t, velocity, frame):
         was = ctrl._light
-        u = real(problem, barrier, t, velocity, offset)
-        seen.append((offset, was, ctrl._light))
+        u = real(problem, barrier, t, velocity, frame)
+        seen.append((ctrl._offset(frame), was, ctrl._light))
         return u
 
     ctrl._solve_increments = recorded
