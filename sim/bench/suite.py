@@ -8,9 +8,11 @@ controller (default VF-LPC and the ground baselines NMPC (MPC-CBF), NMPC-RTI, Ko
 runs each scene once, behind the safety supervisor, through ``sim.bench.impc.run_one``.
 
 It prints one row per scene and controller (outcome, collisions, least clearance, J_MC, RMS and
-peak lateral error, longitudinal jerk p99 / max, t_cal median), then per controller: the scenes
-completed without a collision, the collisions, the scenes where its J_MC is the lowest among the
-controllers that completed that scene without a collision, and for VF-LPC the scenes where its
+peak lateral error, longitudinal jerk p99 / max, t_cal median, background jobs median / p99 /
+max), then per controller: the scenes completed without a collision, the collisions, the scenes
+where its J_MC is the lowest among the controllers that completed that scene without a collision,
+its background jobs over every scene taken together (a scene runs a handful of replans, so a row's
+p99 is close to its maximum), and for VF-LPC the scenes where its
 peak lateral error exceeds the NMPC's by more than 1 m. JSON (rows and totals) and a PNG (J_MC
 per scene as grouped bars, and the trajectories of every scene) go to --out.
 """
@@ -52,14 +54,32 @@ def clean(row: dict) -> bool:
     return row["outcome"] == "completed" and row["collisions"] == 0
 
 
+def job_times(t_background) -> list[float]:
+    """The background jobs' wall times (s) of a run: the ticks that ran one."""
+    t = np.asarray(t_background, float)
+    return t[t > 0.0].tolist()
+
+
+def pooled_jobs(rows: list[dict]) -> dict | None:
+    """The background jobs of rows taken together (a scene runs a handful, so its own p99 is its
+    maximum): count, and median, p99 and max in s; None when no job ran."""
+    t = np.concatenate([np.asarray(r.get("background_s", ()), float) for r in rows] + [np.zeros(0)])
+    if not len(t):
+        return None
+    return {"jobs": int(len(t)), "median": float(np.median(t)), "p99": float(np.percentile(t, 99)),
+            "max": float(np.max(t))}
+
+
 def totals(rows: list[dict], controllers: tuple[str, ...]) -> dict:
     """Per controller: scenes completed without a collision, collisions, scenes with the lowest J_MC
-    among that scene's clean runs; and the scenes where VF-LPC's peak lateral error exceeds the
-    NMPC's by more than PEAK_MARGIN (None unless both ran), with the NMPC's outcome there."""
+    among that scene's clean runs, its background jobs over every scene (``pooled_jobs``); and the
+    scenes where VF-LPC's peak lateral error exceeds the NMPC's by more than PEAK_MARGIN (None
+    unless both ran), with the NMPC's outcome there."""
     scenes = list(dict.fromkeys(r["scenario"] for r in rows))
     out = {c: {"clean": sum(clean(r) for r in rows if r["controller"] == c),
                "collisions": sum(r["collisions"] for r in rows if r["controller"] == c),
-               "lowest_J_MC": 0, "runs": sum(r["controller"] == c for r in rows)} for c in controllers}
+               "lowest_J_MC": 0, "runs": sum(r["controller"] == c for r in rows),
+               "background": pooled_jobs([r for r in rows if r["controller"] == c])} for c in controllers}
     peak_worse = [] if {"vflpc", "nmpc_cbf"} <= set(controllers) else None
     nmpc_outcome: dict[str, str] = {}       # the NMPC's outcome in those scenes (one that stopped did not pass)
     for s in scenes:
@@ -92,13 +112,21 @@ def totals_text(t: dict) -> str:
     lines = [f"totals over {t['scenes']} scenes:"]
     for c, v in t["controllers"].items():
         lines.append(f"  {LABELS[c]:<20} completed without collision {v['clean']}/{v['runs']}, collisions "
-                     f"{v['collisions']}, lowest J_MC among the clean runs in {v['lowest_J_MC']}")
+                     f"{v['collisions']}, lowest J_MC among the clean runs in {v['lowest_J_MC']}"
+                     + _jobs_text(v.get("background")))
     worse = t["vflpc_peak_lateral_over_nmpc"]
     if worse is not None:
         where = [f"{s} (the NMPC {t['nmpc_outcome'][s]})" for s in worse]
         lines.append(f"  VF-LPC peak lateral error > NMPC's + {PEAK_MARGIN:g} m in {len(worse)} scenes"
                      + (f": {', '.join(where)}" if worse else ""))
     return "\n".join(lines)
+
+
+def _jobs_text(b: dict | None) -> str:
+    """", background jobs N, median / p99 / max ms" over the suite, or nothing when none ran."""
+    if not b:
+        return ""
+    return f", background jobs {b['jobs']}: {b['median'] * 1e3:.0f} / {b['p99'] * 1e3:.0f} / {b['max'] * 1e3:.0f} ms"
 
 
 def plot(rows: list[dict], paths: dict, scenes: dict[str, Scenario], controllers: tuple[str, ...], out: Path) -> Path:
@@ -168,7 +196,8 @@ def bench_suite(out: Path, controllers: tuple[str, ...] = CONTROLLERS, only: tup
     for name, sc in scenes.items():
         for c in controllers:
             run = run_one("suite", c, sc)
-            r = {"scenario": name, "controller": c, "wall_s": run.wall, **{k: run.metrics[k] for k in KEYS}}
+            r = {"scenario": name, "controller": c, "wall_s": run.wall, **{k: run.metrics[k] for k in KEYS},
+                 "background_s": job_times(run.record.t_background)}
             rows.append(r)
             paths[name, c] = run.record.position[:, :2]
             print(row_line(r), flush=True)

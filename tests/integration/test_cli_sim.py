@@ -192,7 +192,8 @@ def test_bench_suite_runs_one_scene_with_pure_pursuit_and_writes_json_and_png(tm
                                                                                "completed", 0)
     assert r["min_clearance"] > 0.5 and r["t_cal_median"] > 0
     pp = doc["totals"]["controllers"]["pure_pursuit"]
-    assert pp == {"clean": 1, "collisions": 0, "lowest_J_MC": 1, "runs": 1}
+    assert pp == {"clean": 1, "collisions": 0, "lowest_J_MC": 1, "runs": 1, "background": None}   # no replans
+    assert r["background_s"] == []
     assert doc["totals"]["vflpc_peak_lateral_over_nmpc"] is None
     assert (tmp_path / "bench_suite.png").read_bytes()[:4] == b"\x89PNG"
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from sim.bench.suite import load, suite_dir, suite_names, totals, totals_text
+from sim.bench.suite import job_times, load, suite_dir, suite_names, totals, totals_text
 from vflpcd.config.vehicles import BicycleConfig
 
 
@@ -53,6 +53,24 @@ def test_totals_without_the_nmpc_have_no_peak_comparison_and_nan_j_mc_never_wins
     assert t["vflpc_peak_lateral_over_nmpc"] is None
     assert t["controllers"]["vflpc"]["lowest_J_MC"] == 0 and t["controllers"]["pure_pursuit"]["lowest_J_MC"] == 1
     assert "peak lateral" not in totals_text(t)
+
+
+def test_background_jobs_are_pooled_over_the_scenes_per_controller():
+    # a scene runs a handful of replans, so its own p99 is its maximum: the totals take them together
+    a, b = row("a", "vflpc"), row("b", "vflpc")
+    a["background_s"] = job_times([0.0, 0.010, 0.0, 0.030])
+    b["background_s"] = job_times(np.r_[np.full(97, 0.020), 0.040, 0.0, 0.090])
+    nm = row("a", "nmpc_cbf")
+    nm["background_s"] = []
+    t = totals([a, b, nm], ("vflpc", "nmpc_cbf"))
+    bg = t["controllers"]["vflpc"]["background"]
+    assert a["background_s"] == [0.010, 0.030] and bg["jobs"] == 101
+    assert bg["median"] == 0.020 and bg["max"] == 0.090
+    assert bg["p99"] == pytest.approx(0.040)      # the 100th of 101 in order: not the one 90 ms job
+    assert t["controllers"]["nmpc_cbf"]["background"] is None
+    text = totals_text(t)
+    assert f"background jobs 101: 20 / {bg['p99'] * 1e3:.0f} / 90 ms" in text
+    assert text.count("background jobs") == 1
 
 
 def test_the_suite_has_at_least_14_ground_scenes_named_as_their_files():
