@@ -1,6 +1,7 @@
 """The steps of eq. (xi_r) (``grid.integrate``) as one plain loop to compile.
 
-One step at xi_k = (x, y): the path's chi_P^ from the nearest cell of the global grid, times the
+One step at xi_k = (x, y): the path's chi_P^ interpolated between the four nodes of the global
+grid around xi_k (bilinear, made a unit vector again; ``grid``'s module docstring), times the
 cup_Q_i of each static obstacle whose local grid holds xi_k (its chi_R_i^ for the decided gamma_i
 added with weight 1 - cup), then each mover and each acting virtual obstacle evaluated at xi_k
 (the mover where it is at the step's time), normalised; |chi_c| < epsilon reuses the previous
@@ -69,13 +70,20 @@ def step_loop(state, xy, pdata, filled, pgrid, statics, sdata, gammas, movers, v
     status = OUT_OF_STEPS
     k = k0
     while k < max_steps:
-        fi, fj = (x - ox) * inv_h + 0.5, (y - oy) * inv_h + 0.5  # nearest cell: floor(index + 0.5)
-        if not (0.0 <= fi < nx and 0.0 <= fj < ny):
+        gi, gj = (x - ox) * inv_h, (y - oy) * inv_h     # the node below and left of xi_k, and the weights
+        if not (-0.5 <= gi < nx - 0.5 and -0.5 <= gj < ny - 0.5):
             status = LEFT_GRID
             break
-        i, j = int(fi), int(fj)
-        if not filled[i // block, j // block]:
-            aux[0], aux[1] = i // block, j // block
+        i0, j0 = min(max(int(math.floor(gi)), 0), max(nx - 2, 0)), min(max(int(math.floor(gj)), 0), max(ny - 2, 0))
+        i1, j1 = min(i0 + 1, nx - 1), min(j0 + 1, ny - 1)
+        wi, wj = min(max(gi - i0, 0.0), 1.0), min(max(gj - j0, 0.0), 1.0)
+        missing = False
+        for ci in (i0, i1):
+            for cj in (j0, j1):
+                if not missing and not filled[ci // block, cj // block]:
+                    aux[0], aux[1] = ci // block, cj // block
+                    missing = True
+        if missing:
             status = FILL
             break
         P, Vx, Vy = 1.0, 0.0, 0.0
@@ -140,7 +148,14 @@ def step_loop(state, xy, pdata, filled, pgrid, statics, sdata, gammas, movers, v
             kn = (kx * kx + ky * ky) ** 0.5
             P *= s_i
             Vx, Vy = Vx + (1.0 - s_i) * kx / kn, Vy + (1.0 - s_i) * ky / kn
-        cx, cy = P * pdata[i, j, 0] + Vx, P * pdata[i, j, 1] + Vy
+        px = ((1.0 - wi) * ((1.0 - wj) * pdata[i0, j0, 0] + wj * pdata[i0, j1, 0])
+              + wi * ((1.0 - wj) * pdata[i1, j0, 0] + wj * pdata[i1, j1, 0]))
+        py = ((1.0 - wi) * ((1.0 - wj) * pdata[i0, j0, 1] + wj * pdata[i0, j1, 1])
+              + wi * ((1.0 - wj) * pdata[i1, j0, 1] + wj * pdata[i1, j1, 1]))
+        pn = (px * px + py * py) ** 0.5
+        if pn > 0.0:
+            px, py = px / pn, py / pn
+        cx, cy = P * px + Vx, P * py + Vy
         norm = (cx * cx + cy * cy) ** 0.5
         if norm < epsilon:
             if not has_prev:

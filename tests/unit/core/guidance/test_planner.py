@@ -159,6 +159,27 @@ def test_obstacle_on_the_start_or_the_goal_is_named(params):
         planner.plan(prepared, np.array([0.0, 0.0]), 0.0, 4.0)
 
 
+@pytest.mark.parametrize("offset", [0.004, -0.0123, 0.03, -0.049, 0.2])
+@pytest.mark.parametrize("y0", [0.0, 0.037])
+def test_a_trajectory_started_beside_its_route_converges_to_it(params, offset, y0):
+    """A robot a few centimetres off its route (its tracking error when it replans) is planned
+    back onto the route, wherever the route lies between the grid's nodes: the path's term is
+    interpolated between them (at the nearest node, a start within h / 2 = 5 cm ran parallel to
+    the route at its offset)."""
+    path = ReferencePath.line([0.0, y0], [60.0, y0])
+    planner = GuidancePlanner(path, params, 6.0, 3.0, 1.0, 0.05)
+    prepared = planner.prepare(0.0, [])
+    raw = integrate(prepared.field, prepared.grid, np.array([0.0, y0 + offset]), prepared.x_end, 0.1, 1e-3, 1000,
+                    heading=np.array([1.0, 0.0])).xy
+    lateral = raw[:, 1] - y0
+    at = lambda x: abs(lateral[np.argmin(np.abs(raw[:, 0] - x))])   # noqa: E731
+    assert at(0.0) == pytest.approx(abs(offset))
+    # the field's rate k_p = 1 / m: e^-5 of the offset after 5 m of path, nothing after 10
+    assert at(5.0) < 0.02 * abs(offset) + 1e-4 and at(10.0) < 1e-4 and np.max(np.abs(lateral[raw[:, 0] > 10.0])) < 1e-4
+    plan = planner.plan(prepared, np.array([0.0, y0 + offset]), 0.0, 6.0)
+    assert np.max(np.abs(plan.xy[plan.xy[:, 0] > 15.0, 1] - y0)) < 1e-3
+
+
 def test_leaving_the_grid_is_an_error(params):
     path = ReferencePath.line([0.0, 0.0], [40.0, 0.0])
     planner = GuidancePlanner(path, params, 4.0, 3.0, 1.0, 0.05)
