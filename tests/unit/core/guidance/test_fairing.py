@@ -98,6 +98,25 @@ def test_a_path_the_first_fairing_length_leaves_in_a_region_comes_back_without_t
     np.testing.assert_array_equal(out, fairing.resample(xy, np.zeros(len(xy)), SPACING)[0])
 
 
+@pytest.mark.parametrize("angle", [40.0, 70.0, -90.0])
+def test_a_faired_path_stays_within_a_turning_radius_of_the_path_it_fairs(angle):
+    """A robot heading well off a long straight plan: the stiff lengths that would meet the limit
+    only by running out along the heading (a lever tens of metres long: 625 m off the road in
+    one replan of bench variants) are not taken; the path comes back within 1 / kappa_max of its
+    own points."""
+    from vflpcd.core.guidance.fairing import resample
+
+    xy = np.column_stack([np.linspace(0.0, 60.0, 601), np.zeros(601)])
+    t = np.linspace(0.0, 10.0, 601)
+    a = np.radians(angle)
+    kappa_max = 0.14
+    out = fair_path(xy, t, kappa_max, _values([]), heading=np.array([np.cos(a), np.sin(a)]))
+    r = resample(xy, t, SPACING)[0]
+    assert out.shape == r.shape
+    assert np.max(np.linalg.norm(out - r, axis=1)) <= 1.0 / kappa_max
+    np.testing.assert_allclose(out[0], xy[0], atol=1e-8)
+
+
 LOOPS = pytest.mark.parametrize("loop", [None, active_set_loop()], ids=["numpy", "compiled"])
 
 
