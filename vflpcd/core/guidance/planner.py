@@ -582,11 +582,21 @@ class GuidancePlanner(PlannerBase):
         start = self.check_clear(start, field.statics + field.movers, t0, "start")
         h = None if heading is None else np.array([np.cos(heading), np.sin(heading)])
         crossing = [o for o, term in zip(movers, field.movers) if term.crosses]
-        if crossing:
-            yielded = self.yielding(prepared, field, start, t0, v0, h, movers, crossing)
-            if yielded is not None:
-                return yielded
-        return self._planned(prepared, field, start, t0, v0, h, movers)
+        yielded = self.yielding(prepared, field, start, t0, v0, h, movers, crossing) if crossing else None
+        return self.within_corridor(prepared, yielded or self._planned(prepared, field, start, t0, v0, h, movers))
+
+    def within_corridor(self, prepared: Prepared, plan: GuidancePlan) -> GuidancePlan:
+        """plan, checked to keep within ``corridor`` m of the route (across the stretch's graph, the
+        path implicit's frame): the field, its grid and the obstacles are known only there. A
+        GuidanceError naming how far and where otherwise (the replan fails, the plan before stays).
+        The integration cannot leave the grid; the steps after it (fairing, the tight path) are
+        held near the integrated path, and this is the check that they were."""
+        off = np.abs(prepared.field.path.straighten(plan.xy)[:, 1])
+        k = int(np.argmax(off))
+        if not off[k] <= self.params.corridor:
+            raise GuidanceError(f"the plan leaves the corridor: {off[k]:.1f} m beside the route at "
+                                f"{plan.xy[k].round(1).tolist()} (corridor {self.params.corridor:g} m)")
+        return plan
 
     def _planned(self, prepared: Prepared, field: GuidanceField, start: np.ndarray, t0: float, v0: float,
                  h: np.ndarray | None, movers: Sequence[ObstacleState], may_follow: bool = True) -> GuidancePlan | None:
