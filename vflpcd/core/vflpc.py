@@ -93,12 +93,12 @@ def plan_job(planner, job: ReplanJob) -> PlanResult:
     robot's curvature limit is planned again by the planner's ``recovery`` (narrower margins); the
     recovery plan is taken when it is drivable, else the first plan stands (and the safety gate
     refuses it). A robot inside an obstacle's repulsive region (a tight path passes closer than the
-    field's margin), or a plan that leaves the corridor (``within_corridor``), is planned for by the
+    field's margin), or a plan that leaves the field's grid (``within_grid``), is planned for by the
     recovery at once."""
     try:
         result = _plan_once(planner, job)
     except GuidanceError as exc:    # the robot is inside a repulsive region (a tight path passes closer
-        narrow = planner.recovery()     # than the field's margin), or the plan left the corridor:
+        narrow = planner.recovery()     # than the field's margin), or the plan left the field's grid:
         if narrow is None:              # planned with the recovery's narrow margins
             raise
         log.info("event=recovery_plan t=%.2f margin=%.2f reason=%s", job.t, narrow.params.safety_margin, exc)

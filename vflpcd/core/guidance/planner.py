@@ -583,19 +583,23 @@ class GuidancePlanner(PlannerBase):
         h = None if heading is None else np.array([np.cos(heading), np.sin(heading)])
         crossing = [o for o, term in zip(movers, field.movers) if term.crosses]
         yielded = self.yielding(prepared, field, start, t0, v0, h, movers, crossing) if crossing else None
-        return self.within_corridor(prepared, yielded or self._planned(prepared, field, start, t0, v0, h, movers))
+        return self.within_grid(prepared, yielded or self._planned(prepared, field, start, t0, v0, h, movers))
 
-    def within_corridor(self, prepared: Prepared, plan: GuidancePlan) -> GuidancePlan:
-        """plan, checked to keep within ``corridor`` m of the route (across the stretch's graph, the
-        path implicit's frame): the field, its grid and the obstacles are known only there. A
-        GuidanceError naming how far and where otherwise (the replan fails, the plan before stays).
-        The integration cannot leave the grid; the steps after it (fairing, the tight path) are
-        held near the integrated path, and this is the check that they were."""
-        off = np.abs(prepared.field.path.straighten(plan.xy)[:, 1])
-        k = int(np.argmax(off))
-        if not off[k] <= self.params.corridor:
-            raise GuidanceError(f"the plan leaves the corridor: {off[k]:.1f} m beside the route at "
-                                f"{plan.xy[k].round(1).tolist()} (corridor {self.params.corridor:g} m)")
+    def within_grid(self, prepared: Prepared, plan: GuidancePlan) -> GuidancePlan:
+        """plan, checked to lie within the stretch's field grid (``corridor`` m beside the route and
+        2 m beyond every static obstacle's reach): the field and the obstacles are known only
+        there, and eq. (xi_r)'s integration cannot leave it. A GuidanceError naming how far and
+        where otherwise (the replan fails, the plan before stays). The steps after the integration
+        (fairing, the tight path) are held near the integrated path; this is the check that they
+        were."""
+        xmin, xmax, ymin, ymax = prepared.grid.bounds
+        x, y = plan.xy[:, 0], plan.xy[:, 1]
+        beyond = np.maximum.reduce([xmin - x, x - xmax, ymin - y, y - ymax])
+        k = int(np.argmax(beyond))
+        if not beyond[k] <= 0.0:
+            raise GuidanceError(f"the plan leaves the field's grid: {beyond[k]:.1f} m beyond it at "
+                                f"{plan.xy[k].round(1).tolist()} (grid x {xmin:.1f}..{xmax:.1f}, "
+                                f"y {ymin:.1f}..{ymax:.1f})")
         return plan
 
     def _planned(self, prepared: Prepared, field: GuidanceField, start: np.ndarray, t0: float, v0: float,

@@ -180,15 +180,16 @@ def test_a_trajectory_started_beside_its_route_converges_to_it(params, offset, y
     assert np.max(np.abs(plan.xy[plan.xy[:, 0] > 15.0, 1] - y0)) < 1e-3
 
 
-def test_a_plan_that_leaves_the_corridor_is_an_error_naming_how_far_and_where(params, monkeypatch):
+def test_a_plan_that_leaves_the_field_s_grid_is_an_error_naming_how_far_and_where(params, monkeypatch):
     """The steps after the integration (here a fairing that swings the path out at 45 degrees from
-    10 m on) are checked to keep within the corridor the field and the obstacles are known in."""
+    10 m on) are checked to keep within the grid the field and the obstacles are known in."""
     import vflpcd.core.guidance.planner as planner_module
 
     path = ReferencePath.line([0.0, 0.0], [60.0, 0.0])
     planner = GuidancePlanner(path, params, 6.0, 3.0, 1.0, 0.05)
     prepared = planner.prepare(0.0, [])
     assert np.max(np.abs(planner.plan(prepared, np.zeros(2), 0.0, 6.0).xy[:, 1])) < 1e-6
+    assert prepared.grid.bounds[3] == pytest.approx(params.corridor, abs=params.grid_resolution)
 
     def swung(xy, *args, **kwargs):
         out = np.array(xy, float)
@@ -196,8 +197,8 @@ def test_a_plan_that_leaves_the_corridor_is_an_error_naming_how_far_and_where(pa
         return out
 
     monkeypatch.setattr(planner_module, "fair_path", swung)
-    with pytest.raises(GuidanceError, match=r"the plan leaves the corridor: 4\d\.\d m beside the route at "
-                                            r"\[5\d\.\d, 4\d\.\d\] \(corridor 8 m\)"):
+    with pytest.raises(GuidanceError, match=r"the plan leaves the field's grid: 4\d\.\d m beyond it at "
+                                            r"\[5\d\.\d, 4\d\.\d\] \(grid x -8\.0\.\.\d+\.\d, y -8\.0\.\.8\.0\)"):
         planner.plan(prepared, np.zeros(2), 0.0, 6.0)
 
 
