@@ -44,10 +44,10 @@ point, ``stray``): the fairing takes out the field's kinks, it does not re-route
 pull back to r fades ((h / l)^4: 2e-10 at 64 m), and a stiff minimiser held by a few half-planes
 and the start's heading swung out like a lever: a replan beside a slow car (bench variants seed 34)
 was faired 625 m off the road, clear of every region there and flat, kept as the flattest clear
-path, and driven into the slow car's lane; double_lane_change had one 33 m off (replaced by a
-later plan). A length whose path strays farther ends the doubling (a stiffer one strays further)
-and the best path found before it stands; the legitimate fairings of the road suite and
-carsim_avoidance move points by up to 4 m (tight_s_curve_cones: 3.9 m, 1 / kappa_max is 7.2 m).
+path, and driven into the slow car's lane; double_lane_change's exit had one that moved points by
+14 m. A length whose path strays farther ends the doubling (a stiffer one strays further) and the
+best path found before it stands; the fairings kept in the road suite and carsim_avoidance move
+points by up to 6.4 m (double_lane_change; 1 / kappa_max is 7.2 m for the car).
 """
 
 from __future__ import annotations
