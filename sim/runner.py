@@ -198,11 +198,9 @@ def evaluate(record: RunRecord, scenario: Scenario) -> dict:
         u_tilde=record.applied[ok], t_cal=record.t_cal, clearance=record.clearance,
         q1=w.q1, q2=w.q2, R=w.R, t_com=record.t_com, t_applied=record.t[ok],
         a_x=record.applied[ok][:, record.control_names.index("a_x")] if "a_x" in record.control_names else None)
-    jobs = np.asarray(record.t_background)[np.asarray(record.t_background) > 0.0]   # the ticks that ran jobs
-    metrics["t_background_max"] = float(np.max(jobs)) if len(jobs) else 0.0
-    metrics["t_background_median"] = float(np.median(jobs)) if len(jobs) else 0.0
-    metrics["t_background_p99"] = float(np.percentile(jobs, 99)) if len(jobs) else 0.0
-    metrics["background_jobs"] = int(len(jobs))
+    jobs = job_stats(job_times(record.t_background))
+    metrics["t_background_max"], metrics["t_background_median"] = jobs["max"], jobs["median"]
+    metrics["t_background_p99"], metrics["background_jobs"] = jobs["p99"], jobs["jobs"]
     if metrics.get("collisions", 0) > 0:
         record.outcome = "collision"
     metrics["outcome"] = record.outcome
@@ -215,6 +213,21 @@ def evaluate(record: RunRecord, scenario: Scenario) -> dict:
     metrics["t_sup_p99"] = float(np.percentile(sup, 99)) if sup.size else 0.0
     metrics["impact_speed"] = impact_speed(record)
     return metrics
+
+
+def job_times(t_background) -> np.ndarray:
+    """The background jobs' wall times (s) of a run's t_background (M,): the ticks that ran one."""
+    t = np.asarray(t_background, float)
+    return t[t > 0.0]
+
+
+def job_stats(jobs) -> dict:
+    """Count, median, p99 and max (s) of background job times (all 0 when none ran)."""
+    t = np.asarray(jobs, float)
+    if not t.size:
+        return {"jobs": 0, "median": 0.0, "p99": 0.0, "max": 0.0}
+    return {"jobs": int(t.size), "median": float(np.median(t)), "p99": float(np.percentile(t, 99)),
+            "max": float(np.max(t))}
 
 
 def impact_speed(record: RunRecord) -> float | None:

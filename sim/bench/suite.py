@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.bench.impc import LABELS, _background, _fmt, run_one
+from sim.runner import job_stats, job_times
 from vflpcd.base.paths import config_dir
 from vflpcd.config.scenarios import Scenario, load_scenario
 from sim.plot import save_png
@@ -54,20 +55,11 @@ def clean(row: dict) -> bool:
     return row["outcome"] == "completed" and row["collisions"] == 0
 
 
-def job_times(t_background) -> list[float]:
-    """The background jobs' wall times (s) of a run: the ticks that ran one."""
-    t = np.asarray(t_background, float)
-    return t[t > 0.0].tolist()
-
-
 def pooled_jobs(rows: list[dict]) -> dict | None:
     """The background jobs of rows taken together (a scene runs a handful, so its own p99 is its
-    maximum): count, and median, p99 and max in s; None when no job ran."""
-    t = np.concatenate([np.asarray(r.get("background_s", ()), float) for r in rows] + [np.zeros(0)])
-    if not len(t):
-        return None
-    return {"jobs": int(len(t)), "median": float(np.median(t)), "p99": float(np.percentile(t, 99)),
-            "max": float(np.max(t))}
+    maximum): ``job_stats`` of them, None when no job ran."""
+    stats = job_stats([t for r in rows for t in r.get("background_s", ())])
+    return stats if stats["jobs"] else None
 
 
 def totals(rows: list[dict], controllers: tuple[str, ...]) -> dict:
@@ -113,7 +105,7 @@ def totals_text(t: dict) -> str:
     for c, v in t["controllers"].items():
         lines.append(f"  {LABELS[c]:<20} completed without collision {v['clean']}/{v['runs']}, collisions "
                      f"{v['collisions']}, lowest J_MC among the clean runs in {v['lowest_J_MC']}"
-                     + _jobs_text(v.get("background")))
+                     + _jobs_text(v["background"]))
     worse = t["vflpc_peak_lateral_over_nmpc"]
     if worse is not None:
         where = [f"{s} (the NMPC {t['nmpc_outcome'][s]})" for s in worse]
@@ -197,7 +189,7 @@ def bench_suite(out: Path, controllers: tuple[str, ...] = CONTROLLERS, only: tup
         for c in controllers:
             run = run_one("suite", c, sc)
             r = {"scenario": name, "controller": c, "wall_s": run.wall, **{k: run.metrics[k] for k in KEYS},
-                 "background_s": job_times(run.record.t_background)}
+                 "background_s": job_times(run.record.t_background).tolist()}
             rows.append(r)
             paths[name, c] = run.record.position[:, :2]
             print(row_line(r), flush=True)

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from sim.bench.suite import job_times, load, suite_dir, suite_names, totals, totals_text
+from sim.bench.suite import load, suite_dir, suite_names, totals, totals_text
+from sim.runner import job_times
 from vflpcd.config.vehicles import BicycleConfig
 
 
@@ -58,8 +59,8 @@ def test_totals_without_the_nmpc_have_no_peak_comparison_and_nan_j_mc_never_wins
 def test_background_jobs_are_pooled_over_the_scenes_per_controller():
     # a scene runs a handful of replans, so its own p99 is its maximum: the totals take them together
     a, b = row("a", "vflpc"), row("b", "vflpc")
-    a["background_s"] = job_times([0.0, 0.010, 0.0, 0.030])
-    b["background_s"] = job_times(np.r_[np.full(97, 0.020), 0.040, 0.0, 0.090])
+    a["background_s"] = job_times([0.0, 0.010, 0.0, 0.030]).tolist()
+    b["background_s"] = job_times(np.r_[np.full(97, 0.020), 0.040, 0.0, 0.090]).tolist()
     nm = row("a", "nmpc_cbf")
     nm["background_s"] = []
     t = totals([a, b, nm], ("vflpc", "nmpc_cbf"))
