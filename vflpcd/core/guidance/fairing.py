@@ -39,6 +39,16 @@ have been kept instead. On `follow_slow_car` the last timing pass of each replan
 lengths for nothing (its slower replan 61 -> 42 ms); every suite scene, the road variants,
 carsim_avoidance and uav_3d gave the same numbers to the last digit.
 
+A replan starts at the robot, and a robot that passes an obstacle close (braked beside it, a
+recovery plan's narrow margins) can start inside the band between Q_i and the level its
+half-planes touch: held to them from the third point on, with the first two pinned along the
+heading, the path turned there in one step (0.32-0.37 1/m against the car's 0.17 limit in
+chicane_boxes beside the second box, at every length: the replans were refused as undrivable for
+four ticks). Over its first 1 / (2 kappa_max) m a faired path's half-planes are eased (``lead_in``)
+down to what a path leaving the start along the heading and turning at half kappa_max can reach
+(by at most ``LEAD_IN_DEPTH``), and those points are not held to the clear check; the path turns
+away within the limit, and the tight path and the safety supervisor's exact-shape margin follow.
+
 A faired path stays within one turning radius 1 / kappa_max of the points it fairs (point for
 point, ``stray``): the fairing takes out the field's kinks, it does not re-route. As l grows the
 pull back to r fades ((h / l)^4: 2e-10 at 64 m), and a stiff minimiser held by a few half-planes
@@ -66,6 +76,8 @@ FAIR_MIN, FAIR_MAX = 2.0, 64.0  # fairing length l, m
 LEAD_OUT = 8.0  # m of lead-out beyond a free end (fair_path)
 HEADING_TOLERANCE = np.radians(5.0)  # a planned start direction further off the robot's heading is faired
 SPACING = 0.25  # resampling step h, m
+LEAD_IN_USE = 0.5  # of kappa_max: the turn a plan's first metres are eased to (lead_in)
+LEAD_IN_DEPTH = 0.3  # m a lead-in half-plane is eased by at most
 CLEAR_LEVEL = 0.8  # half-planes touch varphi = CLEAR_LEVEL * c_i: just outside Q_i (c_i < 0)
 NEWTON, NEWTON_TOL = 6, 1e-10  # Newton steps to that level (at most), and the miss in varphi that ends them
 OUTER_ROUNDS = 3  # re-convexifications
@@ -299,7 +311,7 @@ def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequ
     if not pin_end:         # a free end is faired with a lead-out beyond it (``lead_out``), cut off after
         r, t = lead_out(r, t, LEAD_OUT, kappa_max)
     best, best_kappa = r[:K], np.max(menger_curvature(r[:K]))
-    fair, active = FAIR_MIN, None
+    fair, active, eased = FAIR_MIN, None, np.zeros(K, dtype=bool)
     while fair <= FAIR_MAX * (1 + 1e-9):
         eps = (SPACING / fair) ** 4
         x = r
@@ -308,11 +320,13 @@ def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequ
             if len(x) > K:          # the lead-out is free
                 n = np.vstack([n, np.zeros((len(x) - K, n.shape[1]))])
                 b = np.concatenate([b, np.full(len(x) - K, -np.inf)])
+            if heading is not None:
+                b[:K], eased = lead_in(n[:K], b[:K], r[0], heading, kappa_max)
             x, active = solve_active_set(r, eps, n, b, pin_end, active, loop=loop)
         kept, tk = x[:K], t[:K]
         if stray(kept, r[:K], 1.0 / kappa_max):
             return best
-        clear = all(np.all(g.values(kept, tk)[2:-2] > g.c) for g in regions)
+        clear = all(np.all((g.values(kept, tk) > g.c)[2:-2] | eased[2:-2]) for g in regions)
         kappa = np.max(menger_curvature(kept))
         if clear and kappa < best_kappa:
             best, best_kappa = kept, kappa
@@ -322,6 +336,28 @@ def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequ
             return best
         fair *= 2.0
     return best
+
+
+def lead_in(n: np.ndarray, b: np.ndarray, x0: np.ndarray, heading: np.ndarray,
+            kappa_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """The half-planes n_k' x >= b_k (K,) of a path resampled at SPACING whose first two points leave
+    x0 (d,) along ``heading`` (d,), eased over its first 1 / (2 kappa_max) m where a path turning at
+    LEAD_IN_USE kappa_max from there cannot reach them (module docstring): b_k is taken down to
+    n_k' x0 + s_k n_k' h + kappa s_k (s_k - h) |n_k x h| / 2 (s_k = k h: the polyline's offset when
+    each of its points from the second on turns it by kappa h), by at most ``LEAD_IN_DEPTH`` m.
+    Returns (b, the eased points' mask (K,))."""
+    b, eased = b.copy(), np.zeros(len(b), dtype=bool)
+    m = min(int(0.5 / (kappa_max * SPACING)) + 1, len(b))
+    s = SPACING * np.arange(2, m)
+    nk = n[2:m]
+    h = np.asarray(heading, float) / np.linalg.norm(heading)
+    along = nk @ h
+    across = np.sqrt(np.maximum(np.einsum("ij,ij->i", nk, nk) - along * along, 0.0))
+    reach = nk @ x0 + s * along + 0.5 * LEAD_IN_USE * kappa_max * s * (s - SPACING) * across
+    short = np.isfinite(b[2:m]) & (reach < b[2:m])
+    eased[2:m] = short
+    b[2:m] = np.where(short, np.maximum(reach, b[2:m] - LEAD_IN_DEPTH), b[2:m])
+    return b, eased
 
 
 def stray(x: np.ndarray, r: np.ndarray, reach: float) -> bool:

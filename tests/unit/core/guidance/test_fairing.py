@@ -292,3 +292,25 @@ def test_the_lead_out_continues_the_end_on_its_circle_at_most_at_the_limit():
     assert menger_curvature(tight[48:]).max() <= 0.139 + 1e-9
     flat = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
     assert lead_out(flat, np.arange(10.0), 8.0, 0.139)[0] is flat        # a 3-D path is left as it is
+
+
+@pytest.mark.parametrize("beside", [2.52, 2.6, 2.7])
+def test_a_plan_started_beside_a_region_leaves_it_within_the_limit(beside):
+    # A robot passing an obstacle with its start inside the band the half-planes keep clear (between
+    # Q's boundary and the level they touch), its heading 1 deg towards it: the field's path turns
+    # away after 0.3 m. Held to the half-planes from the third point on, the faired path turned there
+    # at 0.64 1/m (a replan refused as undrivable); the lead-in lets its first metres turn away at
+    # the limit, and no point enters Q.
+    o = _obstacle([1.0, beside])
+    assert o.c < o.value(np.zeros((1, 2)))[0] < 0.6 * o.c
+    s = np.arange(0.0, 40.0, 0.1)
+    turn = np.where(s < 0.3, 0.0, np.where(s < 6.0, -0.1, 0.0))
+    xy = 0.1 * np.column_stack([np.cumsum(np.cos(turn)), np.cumsum(np.sin(turn))])
+    xy -= xy[0]
+    assert np.all(o.value(xy) > o.c)
+    heading = np.array([np.cos(0.02), np.sin(0.02)])
+    out = fair_path(xy, np.zeros(len(xy)), 0.14, _values([o]), heading=heading)
+    assert menger_curvature(out).max() <= 0.14
+    assert np.all(o.value(out) > o.c)
+    d = out[1] - out[0]
+    assert d @ heading == pytest.approx(np.linalg.norm(d), abs=1e-6)
