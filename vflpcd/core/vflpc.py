@@ -16,8 +16,9 @@ Every ``step(state, t, obstacles)``:
    shifted weights; in the increment form of ``rate.py`` when ``r_rate`` is configured) and
    applies the first control u = u_r,0 + u~_0, clipped into the actuator magnitude and rate limits;
 6. a solve that returns a non-finite command, or one beyond ``divergence`` times the actuator
-   range, is replaced by the terminal LQR law u~ = -K_P x~ (K_P from the DARE that gives P),
-   counted in ``fallbacks``, and the solver's weights are reset.
+   range, is counted in ``fallbacks`` and the solver's weights are reset; the last plan solved goes
+   on in its place, a step a tick, and when its steps are spent the terminal LQR law
+   u~ = -K_P x~ (K_P from the DARE that gives P).
 
 GP samples are offered to the compensator every model step (``OnlineCompensator.observe``, cheap;
 when the control period is a fraction 1/k of the model's dt, every k-th tick); the refit is worker
@@ -346,6 +347,8 @@ class VFLPC(ControllerBase):
         self._last_inputs = None
         self._t_last: float | None = None       # the time of the last step
         self.fallbacks = 0
+        self._held: np.ndarray | None = None     # the last plan ``_solve`` solved, and the tick it was solved at
+        self._held_tick = 0
         self.replans = 0
         self.replan_failures = 0
         self.stale_replans = 0
@@ -712,9 +715,21 @@ class VFLPC(ControllerBase):
                               np.full(len(chosen), p.mu), p.barrier_length)
 
     def _solve(self, problem: HorizonProblem, barrier: HorizonBarrier, K_terminal: np.ndarray) -> np.ndarray:
-        """The solver's first input of ``problem``; the terminal LQR law -K_terminal x0 on failure."""
+        """The solver's first input of ``problem``. On a failure the plan of the last solve that
+        succeeded goes on, a step a tick since it was solved (its inputs are deviations from the
+        time-indexed reference, which moves on with it), for as many ticks as it has steps; then the terminal LQR
+        law -K_terminal x0. The LQR law of the lifted error alone knows nothing of the obstacles and
+        of the rate limits: the Koopman-MPC, whose OSQP met its iteration cap on three ticks while
+        it passed the slow car of carsim_avoidance, turned into the slow car's lane on it at
+        0.33 rad of steering and +3 m/s^2, where its last plan drove on past it."""
         u_tilde = self._solve_with(self.solver, problem, barrier)
-        return u_tilde[0] if u_tilde is not None else -K_terminal @ problem.x0
+        if u_tilde is not None:
+            self._held, self._held_tick = u_tilde, self._ticks
+            return u_tilde[0]
+        k = self._ticks - self._held_tick
+        if self._held is not None and 0 < k < len(self._held):
+            return self._held[k]
+        return -K_terminal @ problem.x0
 
     def _solve_with(self, solver, problem: HorizonProblem, barrier: HorizonBarrier,
                     bounds: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray | None:

@@ -89,3 +89,33 @@ def test_the_quadrotor_state_is_picked_by_name():
     with pytest.raises(ValueError, match="13 finite numbers"):
         ctrl.step(plant.state[:6], 0.05)
 
+
+
+def test_a_failed_solve_goes_on_with_the_last_plan_before_the_terminal_lqr(straight):
+    ctrl = make_vflpc(straight)
+    plan = np.arange(2.0 * ctrl.N).reshape(ctrl.N, 2)
+
+    class Flaky:
+        ok = True
+
+        def solve(self, problem, barrier, bounds=None):
+            return (plan.copy() if Flaky.ok else np.full((problem.N, problem.n_u), np.nan)), None
+
+        def shift(self):
+            pass
+
+        def reset(self):
+            pass
+
+    ctrl.solver = Flaky()
+    problem = dataclasses.make_dataclass("P", ["x0", "N", "n_u"])(np.ones(3), ctrl.N, 2)
+    K = np.full((2, 3), 1.0)
+    ctrl._ticks = 7
+    assert ctrl._solve(problem, None, K).tolist() == plan[0].tolist()
+    Flaky.ok = False
+    for k in range(1, ctrl.N):                       # the plan's step k, k ticks after it was solved
+        ctrl._ticks = 7 + k
+        assert ctrl._solve(problem, None, K).tolist() == plan[k].tolist()
+    ctrl._ticks = 7 + ctrl.N                         # its steps spent: the terminal LQR law
+    assert ctrl._solve(problem, None, K).tolist() == [-3.0, -3.0]
+    assert ctrl.fallbacks == ctrl.N
