@@ -4,9 +4,11 @@ Rule (a last-chance braking filter). A command u passes when, after applying it 
 time (one control period plus the actuator latency), the platform's emergency manoeuvre from the
 state reached stops the body without coming closer than ``margin`` to any obstacle it knows of:
 static ones, and moving ones along their constant-velocity prediction, each at the time the body
-gets there, and where it stops, it stays out of the way of the movers that cross its heading for
+gets there (while they are ahead of the body's middle, or cross its heading: one that closes in
+from behind along the heading does so by its own motion), and where it stops, it stays out of the way of the movers that cross its heading for
 ``mover_wait_s`` (a stop in a crossing car's path is no safe stop). Otherwise u is replaced by the emergency manoeuvre at once. So the body never enters a
-known obstacle while a stop is still possible, and when none is possible any more it still brakes.
+known obstacle while a stop is still possible, and when none is possible any more it still brakes
+(or, where the stop would leave it in a mover's way, drives on out of it).
 After an intervention the command is handed back only once it keeps ``release_margin`` (more than
 ``margin``), so that the override does not chatter.
 
@@ -18,7 +20,11 @@ The applied steering angle is not measured: it is tracked from the commands sent
 actuator's rate limit. A command also passes when the stop that straightens the steering at its
 rate limit keeps the margin (a car steering back towards its lane beside an obstacle). Body:
 covering discs (``Footprint``). Emergency: a_x = a_min, with the steering held or straightened,
-whichever keeps further off; when that can no longer stop the car short of contact, a_x = a_min
+whichever keeps further off; when no stop keeps the margin because it leaves the car in a mover's
+way (at the first contact of the stop the mover closes on the body faster than the body on it, or
+the stop meets nothing and only the standing does: a crossing car at a junction), a car still at
+``GOING_ON_SPEED`` or more goes on at a_max with the controller's steering when the rule passes
+that; when braking can no longer stop the car short of contact, a_x = a_min
 with the steering (held, the controller's, or full lock either way) whose prediction, the steering
 moving on at its rate limit through the stop, meets the obstacle at the lowest speed (or not at all).
 
@@ -43,6 +49,9 @@ import numpy as np
 from vflpcd.core.footprint import Footprint
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.safety.obstacle_arrays import ObstacleArrays
+
+
+GOING_ON_SPEED = 2.0   # m/s: a car this fast that braking leaves in a mover's way may go on instead (GroundSupervisor._override)
 
 
 @dataclass(frozen=True)
@@ -281,10 +290,14 @@ class Supervisor:
             # clearance cannot change a decision
             keep = np.sqrt((rel * rel).sum(axis=-1)) < (movers.bound + self.reach + self.cfg.release_margin)[:, None]
             if not behind:
-                # a mover counts only while it is ahead of the body's middle: one that closes in
-                # from behind does so by its own motion, and braking cannot avoid it
+                # a mover counts while it is ahead of the body's middle, or while it crosses the body's
+                # heading (more across it than along it): one that closes in from behind along the
+                # heading does so by its own motion, and braking cannot avoid it; a crossing car that
+                # meets the side of a body braking in its way is met by the braking
                 heading = self._heading(pos, yaw)[None]                         # (1, K, d) direction of travel
-                keep &= ((rel + self._middle * heading) * heading).sum(axis=-1) < 0.0
+                along = (movers.velocity[:, None, :] * heading).sum(axis=-1)   # (n_m, K)
+                across2 = (movers.velocity * movers.velocity).sum(axis=1)[:, None] - along * along
+                keep &= (((rel + self._middle * heading) * heading).sum(axis=-1) < 0.0) | (across2 > along * along)
             if keep.any():
                 pts = discs[None] - shift[:, :, None, :]                        # the movers frozen at their stamps
                 gap = movers.signed_distance(pts.reshape(len(movers), K * n, d)).reshape(len(movers), K, n)
@@ -428,7 +441,10 @@ class GroundSupervisor(Supervisor):
     def _poses(self, state: np.ndarray, u: np.ndarray, brake: bool, ramp: bool = False,
                settle: float | None = None, hold: float = 0.0):
         """Poses (K, 2), yaws (K,) and times from now (K,) of "u for the reaction time, then the stop"
-        (``brake``) or "u held as long" (not ``brake``; at least 1 s, and ``hold`` s more). The steering moves toward u's at the rate
+        (``brake``) or "u held as long" (not ``brake``; at least 1 s, and ``hold`` s more; a u that
+        brakes the car to rest before then leaves it standing there, for the check of the movers that
+        come its way: judged on its stop alone, braking to rest in a crossing car's way was a safe
+        way to go on). The steering moves toward u's at the rate
         limit for one period and is then held; with ``ramp`` it keeps moving through the stop (the
         second arc has the steering reached halfway through it); with ``settle`` it moves from
         there toward ``settle`` through the stop (the emergency stop that straightens, ``settle`` 0)."""
@@ -443,6 +459,7 @@ class GroundSupervisor(Supervisor):
         t1, v1, s1 = _run(v0, a1, T)
         t_stop = v1 / self.a_brake
         a2, t2 = (-self.a_brake, t_stop) if brake else (a1, max(t_stop, 1.0) + hold)
+        wanted = T + t2
         t2, _, s2 = _run(v1, a2, t2)
         if ramp:
             turn = lim.delta_rate_max * (self.reaction + 0.5 * t2)
@@ -450,6 +467,16 @@ class GroundSupervisor(Supervisor):
         elif settle is not None:
             turn = lim.delta_rate_max * 0.5 * t2
             k2 = math.tan(d1 + _clamp(settle - d1, -turn, turn)) / L
+        pos, yaw, times = self._poses_moving(X, Y, psi, vx, vy, v0, a1, t1, v1, a2, t2, k1, k2, s1, s2)
+        if brake or t1 + t2 >= wanted - 1e-9:
+            return pos, yaw, times
+        rest = np.linspace(times[-1], wanted, 9)[1:]     # "u held" that brakes the car to rest: it stands
+        return (np.vstack([pos, np.repeat(pos[-1:], len(rest), axis=0)]),
+                np.concatenate([yaw, np.full(len(rest), yaw[-1])]), np.concatenate([times, rest]))
+
+    def _poses_moving(self, X, Y, psi, vx, vy, v0, a1, t1, v1, a2, t2, k1, k2, s1, s2):
+        """``_poses``' samples of the two arcs: s1 m of curvature k1 in t1 s from speed v0 at a1, then
+        s2 m of k2 in t2 s from v1 at a2."""
         s_end = s1 + s2
         if s_end <= self.cfg.max_step_m:           # (nearly) at rest: the pose now and the end pose
             end = _arc_end(X, Y, psi, k1, s_end)
@@ -515,8 +542,15 @@ class GroundSupervisor(Supervisor):
         straight_clear = self.predicted_clearance(state, straight, obstacles, t)[0]
         if straight_clear > clear:      # the stop that straightens keeps further off (``_alternative_stops``)
             brake, clear = straight, straight_clear
+        if clear >= self.cfg.margin:
+            return brake
+        arrays = ObstacleArrays.of(obstacles, self.DIM)
+        if self.speed(state) >= GOING_ON_SPEED and not self._runs_into(state, brake, arrays, t):
+            # braking leaves the body in a mover's way: going on may clear it
+            going = self._going_on(state, u, obstacles, t)
+            if going is not None:
+                return going
         if clear < 0.0:
-            arrays = ObstacleArrays.of(obstacles, self.DIM)
             best, harm = brake, self._impact(state, brake, arrays, t)
             steers = (lim.delta_max, -lim.delta_max) if u is None else (float(u[1]), lim.delta_max, -lim.delta_max)
             for steer in steers:
@@ -527,15 +561,49 @@ class GroundSupervisor(Supervisor):
             return best
         return brake
 
-    def _impact(self, state: np.ndarray, u: np.ndarray, arrays: ObstacleArrays, t: float) -> float:
-        """The harm of "u for the reaction time, then the stop": the speed (m/s) at the first pose whose
-        disc cover meets an obstacle, or minus the least clearance (m) when none does."""
+    def _going_on(self, state: np.ndarray, u: np.ndarray | None, obstacles: Sequence[ObstacleState],
+                  t: float) -> np.ndarray | None:
+        """A command that goes on where no stop keeps the margin (a car braked into a crossing car's
+        way): the controller's steering (held where there is no command u) at the strongest
+        acceleration, when the rule itself passes it (``margin``); None otherwise."""
+        steer = float(u[1]) if u is not None else self._delta_now(np.asarray(state, float)[self._idx])
+        candidate = np.array([self.limits.a_max, steer])
+        if self.predicted_clearance(state, candidate, obstacles, t)[0] >= self.cfg.margin:
+            return candidate
+        return None
+
+    def _stop_gaps(self, state: np.ndarray, u: np.ndarray, arrays: ObstacleArrays, t: float):
+        """The poses (pos, yaw, times from now) of "u for the reaction time, then the stop" with the
+        steering moving on through it, and each obstacle's disc-cover clearance (m) at each (n_o, K)."""
         pos, yaw, times = self._poses(state, u, True, ramp=True)
         discs = self._discs(pos, yaw)
         K, n, d = discs.shape
         shift = arrays.velocity[:, None, :] * (t + times[None, :] - arrays.stamps[:, None])[..., None]
         pts = (discs[None] - shift[:, :, None, :]).reshape(len(arrays), K * n, d)
-        gap = arrays.signed_distance(pts).reshape(len(arrays), K, n).min(axis=(0, 2)) - self.radius   # (K,)
+        return pos, yaw, times, arrays.signed_distance(pts).reshape(len(arrays), K, n).min(axis=2) - self.radius
+
+    def _runs_into(self, state: np.ndarray, u: np.ndarray, arrays: ObstacleArrays, t: float) -> bool:
+        """Whether the body, on "u for the reaction time, then the stop", runs into an obstacle: at its
+        first contact it closes on the obstacle faster than the obstacle closes on it (a pedestrian
+        stepping out in front of it), rather than being met (a crossing car into a body braked in
+        its way), or it meets nothing at all (False)."""
+        pos, yaw, times, gaps = self._stop_gaps(state, u, arrays, t)
+        hit = np.flatnonzero((gaps < 0.0).any(axis=0))
+        if not hit.size:
+            return False
+        k = int(hit[0])
+        i = int(np.argmin(gaps[:, k]))
+        towards = arrays.centers[i] + arrays.velocity[i] * (t + times[k] - arrays.stamps[i]) - pos[k]
+        towards = towards / max(float(np.linalg.norm(towards)), 1e-9)
+        j = max(k, 1)
+        body = (pos[j] - pos[j - 1]) / max(float(times[j] - times[j - 1]), 1e-9) if len(pos) > 1 else 0.0 * towards
+        return float(body @ towards) >= float(-arrays.velocity[i] @ towards)
+
+    def _impact(self, state: np.ndarray, u: np.ndarray, arrays: ObstacleArrays, t: float) -> float:
+        """The harm of "u for the reaction time, then the stop": the speed (m/s) at the first pose whose
+        disc cover meets an obstacle, or minus the least clearance (m) when none does."""
+        _, _, times, gaps = self._stop_gaps(state, u, arrays, t)
+        gap = gaps.min(axis=0)
         hit = np.flatnonzero(gap < 0.0)
         if not hit.size:
             return -float(gap.min())

@@ -268,3 +268,18 @@ def test_a_car_is_not_stopped_in_the_way_of_a_crossing_car():
             impact = float(np.hypot(*plant.velocity_world()))
         least = min(least, gap)
     assert impact is None and least > 0.0
+
+
+@pytest.mark.parametrize("y0", [-12.0, -10.0])
+def test_a_car_braking_into_a_crossing_cars_way_is_made_to_go_on_out_of_it(y0):
+    # A controller that brakes hard at 6 m/s with a car crossing 6 m ahead from the right at 4.7 m/s:
+    # the stop ends with the bumper in the crossing car's lane (x 5.05..6.95) before it arrives. The
+    # stop was judged on its own (the command "held" brought the car to rest and was not checked
+    # standing there), and the crossing car behind the body's middle did not count: the braking went
+    # through and the crossing car hit the car at rest. Going on at a_max clears its lane first.
+    plant, sup, body = car(6.0)
+    crossing = obstacle("crossing", Box(1.9, 4.5), [6.0, y0], velocity=(0.0, 4.7))
+    least, impact, interventions = drive(plant, sup, body, [crossing], [-6.0, 0.0], 5.0, moving=True)
+    assert impact is None and least > 0.1
+    assert interventions >= 1 and plant.position()[0] > 6.95 + 2.0    # past its lane, not stopped in it
+
