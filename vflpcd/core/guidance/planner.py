@@ -557,33 +557,29 @@ class GuidancePlanner(PlannerBase):
                         statics=tuple(o for o in statics if o.id in terms))
 
     def clear_end(self, s0: float, s_end: float, statics: Sequence[ObstacleState]) -> float:
-        """The stretch's end s_end, moved out of the spans of the route that lie within a static
-        obstacle's reactive region or ``END_CLEAR_S`` s at v_desired of it: the next replan is
-        asked about that long before a plan ends, from where the robot is then, and a robot that
-        passes an obstacle closer than the field's regions (the tight path, 0.45 m beside a truck)
-        cannot be planned for while it is in one, even with the recovery's margins (a plan that
-        ended beside a 10 m truck stopped the car there: every replan from beside it failed, a
-        failsafe after 2 s). The latest clear point back to half the horizon, else the first one
-        on up to half a horizon further (at most the path's end); where the spans leave none (a
-        slalom's cones all along), s_end as it is."""
+        """The stretch's end s_end moved out of the span of the route where a static obstacle's
+        reactive region reaches it, or that ``END_CLEAR_S`` s at v_desired before it: the next
+        replan is asked about that long before a plan ends, and a robot that passes an obstacle
+        closer than the field's regions (the tight path, 0.45 m beside a truck) cannot be planned
+        for while it is in one, even with the recovery's margins. A plan that ended beside a
+        10 m truck stopped the car there (every replan from beside it failed, a failsafe after
+        2 s). The end moves back before the span where that leaves at least half the horizon,
+        else on past it by as much (at most to the path's end)."""
         lead = END_CLEAR_S * self.v_desired
-        spans = []
-        for o in statics:
-            imp = self.implicit(o)
-            proj = self.path.project(imp.center)
-            if abs(proj.lateral) < imp.reach:
-                w = float(np.sqrt(imp.reach ** 2 - proj.lateral ** 2))
-                spans.append((proj.s - w - lead, proj.s + w + lead))
-        inside = lambda s: any(a < s < b for a, b in spans)      # noqa: E731
-        if not inside(s_end):
-            return s_end
-        half = 0.5 * self.params.horizon
-        ends = sorted({x for span in spans for x in span} | {self.path.length})
-        back = [x for x in ends if s0 + half <= x < s_end and not inside(x)]
-        if back:
-            return back[-1]
-        on = [x for x in ends if s_end < x <= min(s_end + half, self.path.length) and not inside(x)]
-        return on[0] if on else s_end
+        for _ in range(len(statics) + 1):
+            spans = []
+            for o in statics:
+                imp = self.implicit(o)
+                proj = self.path.project(imp.center)
+                if abs(proj.lateral) < imp.reach:
+                    w = float(np.sqrt(imp.reach ** 2 - proj.lateral ** 2))
+                    spans.append((proj.s - w - lead, proj.s + w + lead))
+            hit = [(a, b) for a, b in spans if a < s_end < b]
+            if not hit:
+                return s_end
+            a, b = min(x for x, _ in hit), max(y for _, y in hit)
+            s_end = a if a - s0 >= 0.5 * self.params.horizon else min(b, self.path.length)
+        return s_end
 
     def _integrate_and_time(self, field, prepared: Prepared, start, t0, v0, heading, steps, fair: bool = True,
                             integration: Integration | None = None):

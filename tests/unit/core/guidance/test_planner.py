@@ -182,16 +182,6 @@ def test_a_stretch_does_not_end_beside_a_static_obstacle(params, truck_x, length
     assert abs(path.project(plan.xy[-1]).s - prepared.s_end) < 1.0
 
 
-def test_a_stretch_through_a_slalom_ends_where_the_horizon_does(params):
-    """Cones every 12 m, alternately 1 m left and right of the route: every point of the route lies
-    within a span, and the stretch keeps its horizon (a first version moved the end from span to
-    span, and the slalom's plans broke the curvature limit)."""
-    path = ReferencePath.line([0.0, 0.0], [200.0, 0.0])
-    planner = GuidancePlanner(path, params, 6.0, 3.0, 1.0, 0.05)
-    cones = [static(f"c{k}", Circle(0.3), 20.0 + 12.0 * k, 1.0 if k % 2 else -1.0) for k in range(12)]
-    assert planner.prepare(0.0, cones).s_end == pytest.approx(params.horizon)
-
-
 @pytest.mark.parametrize("offset", [0.004, -0.0123, 0.03, -0.049, 0.2])
 @pytest.mark.parametrize("y0", [0.0, 0.037])
 def test_a_trajectory_started_beside_its_route_converges_to_it(params, offset, y0):
