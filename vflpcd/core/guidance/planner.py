@@ -64,7 +64,6 @@ FOLLOW_SPEEDS = (0.8, 0.6, 0.45, 0.3, 0.2, 0.1)  # of v_desired: slower speed pl
 FOLLOW_SLACK = 0.25
 DRIVABLE_ROUNDING = 1e-9  # relative: the speed plan meets v^2 kappa = a_lat_max up to rounding
 MOVER_PASSES = 3  # re-integrations with moving obstacles placed at the previous pass's arrival times
-END_CLEAR_S = 3.0  # s at v_desired: a stretch does not end within this of a static obstacle's reactive region (``clear_end``)
 STATIC_MEMO = 4096  # static obstacles whose implicit and term a planner keeps (``static_terms``)
 SIDE_RAYS = np.column_stack([np.cos(np.linspace(0.0, 2.0 * np.pi, 360, endpoint=False)),
                              np.sin(np.linspace(0.0, 2.0 * np.pi, 360, endpoint=False))])  # ``actual_term``'s boundary rays
@@ -530,8 +529,6 @@ class GuidancePlanner(PlannerBase):
         p = self.params
         s0 = float(self.path.wrap_s(s0)) if self.path.closed else float(np.clip(s0, 0.0, self.path.length))
         s_end = graph_horizon(self.path, s0, p.horizon)
-        if not self.path.closed and s_end < self.path.length - 1e-9:    # a stretch that ends the path ends at the goal
-            s_end = self.clear_end(s0, s_end, statics)
         ends_path = (not self.path.closed) and s_end >= self.path.length - 1e-9
         back = min(5.0, s0) if not self.path.closed else 5.0
         graph = GraphPath.from_reference(self.path, s0 - back, s_end)
@@ -555,31 +552,6 @@ class GuidancePlanner(PlannerBase):
         x_end = float(graph.progress(self.path.point_at(s_end)[None, :])[0]) - (p.beta if ends_path else 0.0)
         return Prepared(field=field, grid=grid, s0=s0, s_end=s_end, x_end=x_end, ends_path=ends_path,
                         statics=tuple(o for o in statics if o.id in terms))
-
-    def clear_end(self, s0: float, s_end: float, statics: Sequence[ObstacleState]) -> float:
-        """The stretch's end s_end moved out of the span of the route where a static obstacle's
-        reactive region reaches it, or that ``END_CLEAR_S`` s at v_desired before it: the next
-        replan is asked about that long before a plan ends, and a robot that passes an obstacle
-        closer than the field's regions (the tight path, 0.45 m beside a truck) cannot be planned
-        for while it is in one, even with the recovery's margins. A plan that ended beside a
-        10 m truck stopped the car there (every replan from beside it failed, a failsafe after
-        2 s). The end moves back before the span where that leaves at least half the horizon,
-        else on past it by as much (at most to the path's end)."""
-        lead = END_CLEAR_S * self.v_desired
-        for _ in range(len(statics) + 1):
-            spans = []
-            for o in statics:
-                imp = self.implicit(o)
-                proj = self.path.project(imp.center)
-                if abs(proj.lateral) < imp.reach:
-                    w = float(np.sqrt(imp.reach ** 2 - proj.lateral ** 2))
-                    spans.append((proj.s - w - lead, proj.s + w + lead))
-            hit = [(a, b) for a, b in spans if a < s_end < b]
-            if not hit:
-                return s_end
-            a, b = min(x for x, _ in hit), max(y for _, y in hit)
-            s_end = a if a - s0 >= 0.5 * self.params.horizon else min(b, self.path.length)
-        return s_end
 
     def _integrate_and_time(self, field, prepared: Prepared, start, t0, v0, heading, steps, fair: bool = True,
                             integration: Integration | None = None):

@@ -57,10 +57,9 @@ def test_a_swerve_on_a_straight_road_keeps_the_course():
             swerving += 1
             names = list(ctrl.model.state_names)
             ref = ctrl._reference(k * 0.05)
-            on = k * 0.05 + ctrl._horizon_offsets < ctrl.current_plan.trajectory.t[-1] - 1e-9   # the plan's own rows
             np.testing.assert_array_equal(ref[:, names.index("vy")], 0.0)
-            np.testing.assert_allclose(ref[on, names.index("psi")], course["psi"][on], atol=1e-12)
-            np.testing.assert_allclose(ref[on, names.index("vx")], course["v"][on], atol=1e-12)
+            np.testing.assert_allclose(ref[:, names.index("psi")], course["psi"], atol=1e-12)
+            np.testing.assert_allclose(ref[:, names.index("vx")], course["v"], atol=1e-12)
     assert swerving > 10
 
 

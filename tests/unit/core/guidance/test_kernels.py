@@ -27,7 +27,7 @@ def scene():
     path = ReferencePath.from_waypoints(np.array([[0.0, 0.0], [30.0, 0.0], [60.0, 8.0], [90.0, 20.0]]))
     planner = GuidancePlanner(path, replace(default_guidance(), virtual="auto"), 6.0, 3.0, 1.0, 0.05)
     prepared = planner.prepare(0.0, [_obstacle("car", Box(4.5, 1.9), 25.0, 0.4, 0.1),
-                                     _obstacle("cone", Circle(0.3), 40.0, 3.6)])
+                                     _obstacle("cone", Circle(0.3), 55.0, 6.0)])
     movers = [_obstacle("walker", Circle(0.4), 45.0, -6.0, velocity=(0.0, 1.4), stamp=1.0),
               _obstacle("oncoming", Ellipse(2.4, 1.0), 90.0, 26.0, 0.45, velocity=(-5.0, -2.4))]
     field = replace(prepared.field, movers=[planner.actual_term(planner.implicit(o), 0.0) for o in movers])

@@ -9,7 +9,7 @@ from vflpcd.config.scenarios import default_guidance, load_scenario
 from vflpcd.core.guidance.grid import FieldGrid, integrate
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.config.params import guidance_params
-from vflpcd.core.guidance.planner import END_CLEAR_S, FOLLOW_SLACK, GuidancePlanner, _crossing_spans
+from vflpcd.core.guidance.planner import FOLLOW_SLACK, GuidancePlanner, _crossing_spans
 from vflpcd.core.guidance.speed import plan_speed, smooth_path
 from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE, Keepout
 from vflpcd.core.guidance.trajectory import timed_trajectory
@@ -157,29 +157,6 @@ def test_obstacle_on_the_start_or_the_goal_is_named(params):
     prepared = planner.prepare(0.0, [static("rock", Circle(1.0), 1.0, 0.5)])
     with pytest.raises(GuidanceError, match="'rock' covers the start"):
         planner.plan(prepared, np.array([0.0, 0.0]), 0.0, 4.0)
-
-
-@pytest.mark.parametrize("truck_x, length, ends_before", [(58.0, 10.0, True), (45.0, 30.0, False)])
-def test_a_stretch_does_not_end_beside_a_static_obstacle(params, truck_x, length, ends_before):
-    """The next replan is asked a few seconds before a plan ends, and a robot passing an obstacle
-    closer than the field's regions (on the tight path) cannot be planned for while it is beside
-    it: a stretch ends at least END_CLEAR_S at v_desired before the span of the route that an
-    obstacle's reactive region reaches, or as far past it when that would leave less than half the
-    horizon."""
-    path = ReferencePath.line([0.0, 0.0], [200.0, 0.0])
-    planner = GuidancePlanner(path, params, 6.0, 3.0, 1.0, 0.05)
-    truck = static("truck", Box(length, 2.5), truck_x, -0.3)
-    assert planner.prepare(0.0, []).s_end == pytest.approx(params.horizon)
-    prepared = planner.prepare(0.0, [truck])
-    imp = planner.implicit(truck)
-    w = np.sqrt(imp.reach ** 2 - 0.3 ** 2)
-    if ends_before:
-        assert prepared.s_end == pytest.approx(truck_x - w - END_CLEAR_S * 6.0)
-        assert prepared.s_end >= 0.5 * params.horizon
-    else:                     # a row of parked cars as long as half the horizon: the stretch ends past it
-        assert prepared.s_end == pytest.approx(truck_x + w + END_CLEAR_S * 6.0)
-    plan = planner.plan(prepared, np.array([0.0, 0.0]), 0.0, 6.0)
-    assert abs(path.project(plan.xy[-1]).s - prepared.s_end) < 1.0
 
 
 @pytest.mark.parametrize("offset", [0.004, -0.0123, 0.03, -0.049, 0.2])
