@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -121,6 +122,28 @@ def cmd_bench_safety(args) -> int:
             raise ConfigError("command line", "--controller",
                               f"expected one of {', '.join(CONTROLLERS)} (ground controllers), got {name!r}")
     bench_safety(args.out, scenes, controllers)
+    return 0
+
+
+def cmd_bench_jitter(args) -> int:
+    from sim.bench.suite import suite_names
+    from vflpcd.controllers import CONTROLLERS as KNOWN
+
+    if args.n < 1 or args.first_seed < 0:
+        raise ConfigError("command line", "--n", "expected at least one copy and a seed >= 0")
+    if not (math.isfinite(args.scale) and 0.0 <= args.scale <= 5.0):
+        raise ConfigError("command line", "--scale", f"expected a scale from 0 to 5, got {args.scale}")
+    names = suite_names()
+    for name in args.only or ():
+        if name not in names:
+            raise ConfigError("command line", "--only", f"no such suite scenario {name!r} (have: {', '.join(names)})")
+    ground = [c for c, (_, platforms) in KNOWN.items() if "ground" in platforms]
+    if args.controller not in ground:
+        raise ConfigError("command line", "--controller", f"expected a ground controller from {', '.join(ground)}, "
+                                                          f"got {args.controller!r}")
+    from sim.bench.jitter import bench_jitter
+
+    bench_jitter(args.out, args.n, args.first_seed, args.scale, args.controller, tuple(args.only or ()) or None)
     return 0
 
 

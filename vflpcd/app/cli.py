@@ -116,6 +116,19 @@ def main(argv: list[str] | None = None) -> int:
     _out(b)
     b.set_defaults(func=_simulator("cmd_bench_suite"))
 
+    b = bench.add_parser("jitter", help="a ground controller on jittered copies of the road suite's scenes "
+                                        "(obstacles and speeds moved; outcome, collisions, clearance)")
+    b.add_argument("--n", type=int, default=3, help="copies of each scene (default 3)")
+    b.add_argument("--first-seed", type=int, default=0, help="seed of the first copy (default 0)")
+    b.add_argument("--scale", type=float, default=1.0,
+                   help="jitter scale: obstacles up to 2 m along and 0.4 m across the route, movers 3 m / 0.3 m "
+                        "and 20 %% of their speed, the speeds 15 %%, times this (default 1)")
+    b.add_argument("--controller", default="vflpc", help="a ground controller (default vflpc)")
+    b.add_argument("--only", nargs="+", action="extend", default=None, metavar="NAME",
+                   help="scenes of config/scenarios/suite/ to jitter (default all)")
+    _out(b)
+    b.set_defaults(func=_simulator("cmd_bench_jitter"))
+
     b = bench.add_parser("tick", help="where a VF-LPC tick spends its time (phases in us, vehicle and quadrotor) "
                                       "how ticks and replans scale with static and moving obstacles, and the "
                                       "tick paced at 100 Hz against back to back")
