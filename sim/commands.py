@@ -125,54 +125,65 @@ def cmd_bench_safety(args) -> int:
     return 0
 
 
-def cmd_bench_jitter(args) -> int:
+def _suite_only(only) -> tuple[str, ...] | None:
+    """``--only``: suite scenes, each checked to exist (ConfigError naming it), duplicates dropped."""
     from sim.bench.suite import suite_names
+
+    names = suite_names()
+    for name in only or ():
+        if name not in names:
+            raise ConfigError("command line", "--only", f"no such suite scenario {name!r} (have: {', '.join(names)})")
+    return tuple(dict.fromkeys(only)) if only else None
+
+
+def _ground_controllers(controllers, option: str) -> list[str]:
+    """Check that every name is a ground controller (ConfigError naming ``option`` otherwise);
+    returns what the missing solvers are ("nmpc_rti needs casadi"), empty when none is."""
+    import importlib.util
+
     from vflpcd.controllers import CONTROLLERS as KNOWN
 
+    ground = [c for c, (_, platforms) in KNOWN.items() if "ground" in platforms]
+    for name in controllers:
+        if name not in ground:
+            raise ConfigError("command line", option, f"expected ground controllers from {', '.join(ground)}, "
+                                                      f"got {name!r}")
+    solver = {"nmpc_cbf": "casadi", "nmpc_rti": "casadi", "koopman_mpc": "osqp"}
+    return [f"{c} needs {solver[c]}" for c in controllers if c in solver and importlib.util.find_spec(solver[c]) is None]
+
+
+def _missing(solvers: list[str]) -> int:
+    print(f"vflpcd: error: {', '.join(solvers)}: pip install -e '.[bench]'", file=sys.stderr)
+    return 2
+
+
+def cmd_bench_jitter(args) -> int:
     if args.n < 1 or args.first_seed < 0:
         raise ConfigError("command line", "--n", "expected at least one copy and a seed >= 0")
     if not (math.isfinite(args.scale) and 0.0 <= args.scale <= 5.0):
         raise ConfigError("command line", "--scale", f"expected a scale from 0 to 5, got {args.scale}")
-    names = suite_names()
-    for name in args.only or ():
-        if name not in names:
-            raise ConfigError("command line", "--only", f"no such suite scenario {name!r} (have: {', '.join(names)})")
-    ground = [c for c, (_, platforms) in KNOWN.items() if "ground" in platforms]
-    if args.controller not in ground:
-        raise ConfigError("command line", "--controller", f"expected a ground controller from {', '.join(ground)}, "
-                                                          f"got {args.controller!r}")
+    only = _suite_only(args.only)
+    missing = _ground_controllers([args.controller], "--controller")
+    if missing:
+        return _missing(missing)
     from sim.bench.jitter import bench_jitter
 
-    bench_jitter(args.out, args.n, args.first_seed, args.scale, args.controller, tuple(args.only or ()) or None)
+    bench_jitter(args.out, args.n, args.first_seed, args.scale, args.controller, only)
     return 0
 
 
 def cmd_bench_suite(args) -> int:
-    from sim.bench.suite import CONTROLLERS, suite_names
-    from vflpcd.controllers import CONTROLLERS as KNOWN
+    from sim.bench.suite import CONTROLLERS
 
-    names = suite_names()
-    for name in args.only or ():
-        if name not in names:
-            raise ConfigError("command line", "--only", f"no such suite scenario {name!r} (have: {', '.join(names)})")
-    ground = [c for c, (_, platforms) in KNOWN.items() if "ground" in platforms]
+    only = _suite_only(args.only)
     controllers = tuple(dict.fromkeys(c.strip() for c in args.controllers.split(","))) if args.controllers \
         else CONTROLLERS
-    for name in controllers:
-        if name not in ground:
-            raise ConfigError("command line", "--controllers",
-                              f"expected ground controllers from {', '.join(ground)}, got {name!r}")
-    import importlib.util
-
-    solver = {"nmpc_cbf": "casadi", "nmpc_rti": "casadi", "koopman_mpc": "osqp"}
-    missing = [f"{c} needs {solver[c]}" for c in controllers
-               if c in solver and importlib.util.find_spec(solver[c]) is None]
+    missing = _ground_controllers(controllers, "--controllers")
     if missing:
-        print(f"vflpcd: error: {', '.join(missing)}: pip install -e '.[bench]'", file=sys.stderr)
-        return 2
+        return _missing(missing)
     from sim.bench.suite import bench_suite
 
-    bench_suite(args.out, controllers, tuple(dict.fromkeys(args.only)) if args.only else None)
+    bench_suite(args.out, controllers, only)
     return 0
 
 

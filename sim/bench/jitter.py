@@ -126,11 +126,11 @@ def bench_jitter(out: Path, n: int = 3, first_seed: int = 0, scale: float = 1.0,
             print(f"{name:<24} {seed:>4} {r['outcome']:<10} {r['collisions']:>4} {r['min_clearance']:>8.3f} "
                   f"{r['J_MC']:>7.3f} {r['peak_lateral_error']:>8.2f} {r['replan_failures'] or 0:>12}  "
                   f"{r['failsafe'] or ''}"[:220], flush=True)
-    clean = [r for r in rows if r["outcome"] == "completed" and r["collisions"] == 0]
-    summary = {"controller": controller, "scale": scale, "runs": len(rows), "completed_without_collision": len(clean),
+    clean = [r["outcome"] == "completed" and r["collisions"] == 0 for r in rows]
+    summary = {"controller": controller, "scale": scale, "runs": len(rows), "completed_without_collision": sum(clean),
                "collisions": sum(r["collisions"] for r in rows),
-               "not_clean": [r["file"] for r in rows if r not in clean]}
-    print(f"\n{len(clean)}/{len(rows)} runs completed without a collision, {summary['collisions']} collisions"
+               "not_clean": [r["file"] for r, ok in zip(rows, clean) if not ok]}
+    print(f"\n{sum(clean)}/{len(rows)} runs completed without a collision, {summary['collisions']} collisions"
           + "".join(f"\n  not clean: {f}" for f in summary["not_clean"]))
     (out / "bench_jitter.json").write_text(json.dumps({"summary": summary, "runs": rows}, indent=2,
                                                       default=float) + "\n")

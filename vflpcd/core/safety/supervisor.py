@@ -545,13 +545,14 @@ class GroundSupervisor(Supervisor):
         if clear >= self.cfg.margin:
             return brake
         arrays = ObstacleArrays.of(obstacles, self.DIM)
-        if self.speed(state) >= GOING_ON_SPEED and not self._runs_into(state, brake, arrays, t):
+        stop = self._stop_gaps(state, brake, arrays, t)
+        if self.speed(state) >= GOING_ON_SPEED and not self._runs_into(stop, arrays, t):
             # braking leaves the body in a mover's way: going on may clear it
             going = self._going_on(state, u, obstacles, t)
             if going is not None:
                 return going
         if clear < 0.0:
-            best, harm = brake, self._impact(state, brake, arrays, t)
+            best, harm = brake, self._harm(state, brake, stop)
             steers = (lim.delta_max, -lim.delta_max) if u is None else (float(u[1]), lim.delta_max, -lim.delta_max)
             for steer in steers:
                 candidate = np.array([lim.a_min, steer])
@@ -582,12 +583,13 @@ class GroundSupervisor(Supervisor):
         pts = (discs[None] - shift[:, :, None, :]).reshape(len(arrays), K * n, d)
         return pos, yaw, times, arrays.signed_distance(pts).reshape(len(arrays), K, n).min(axis=2) - self.radius
 
-    def _runs_into(self, state: np.ndarray, u: np.ndarray, arrays: ObstacleArrays, t: float) -> bool:
-        """Whether the body, on "u for the reaction time, then the stop", runs into an obstacle: at its
-        first contact it closes on the obstacle faster than the obstacle closes on it (a pedestrian
-        stepping out in front of it), rather than being met (a crossing car into a body braked in
-        its way), or it meets nothing at all (False)."""
-        pos, yaw, times, gaps = self._stop_gaps(state, u, arrays, t)
+    @staticmethod
+    def _runs_into(stop, arrays: ObstacleArrays, t: float) -> bool:
+        """Whether the body, on a stop (``_stop_gaps``' poses and clearances to ``arrays`` at time t),
+        runs into an obstacle: at its first contact it closes on the obstacle faster than the
+        obstacle closes on it (a pedestrian stepping out in front of it), rather than being met (a
+        crossing car into a body braked in its way), or it meets nothing at all (False)."""
+        pos, _, times, gaps = stop
         hit = np.flatnonzero((gaps < 0.0).any(axis=0))
         if not hit.size:
             return False
@@ -600,9 +602,14 @@ class GroundSupervisor(Supervisor):
         return float(body @ towards) >= float(-arrays.velocity[i] @ towards)
 
     def _impact(self, state: np.ndarray, u: np.ndarray, arrays: ObstacleArrays, t: float) -> float:
-        """The harm of "u for the reaction time, then the stop": the speed (m/s) at the first pose whose
-        disc cover meets an obstacle, or minus the least clearance (m) when none does."""
-        _, _, times, gaps = self._stop_gaps(state, u, arrays, t)
+        """The harm of "u for the reaction time, then the stop" (``_harm``)."""
+        return self._harm(state, u, self._stop_gaps(state, u, arrays, t))
+
+    def _harm(self, state: np.ndarray, u: np.ndarray, stop) -> float:
+        """The harm of the stop of command u (``_stop_gaps``' poses and clearances): the speed (m/s)
+        at the first pose whose disc cover meets an obstacle, or minus the least clearance (m) when
+        none does."""
+        _, _, times, gaps = stop
         gap = gaps.min(axis=0)
         hit = np.flatnonzero(gap < 0.0)
         if not hit.size:
