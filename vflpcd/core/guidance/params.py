@@ -45,6 +45,7 @@ class GuidanceParams:
     reactive_per_speed: float = 0.0
     recovery_margin: float = 0.1
     recovery_reactive_margin: float = 0.5
+    recovery_tight_margin: float = 0.3
     tight_length: float = 0.0
     tight_margin: float = 0.4
     tight_mover_window: float = 0.0

@@ -168,6 +168,37 @@ def test_a_robot_inside_a_repulsive_region_is_planned_for_by_the_recovery(straig
     assert np.linalg.norm(result.plan.xy[0] - job.pos) < 1e-9
 
 
+# Two rows of parked cars (4.6 m x 1.9 m) along a street, staggered: the narrowest gap, 2.96 m at
+# x = 32-35 m, lies 0.17 m right of the street's centre line
+PARKED = {"right1": (31.993, -2.599), "right2": (36.611, -2.588), "right3": (42.483, -2.449),
+          "right4": (44.17, -3.072), "left1": (33.219, 2.263), "left2": (36.439, 2.479), "left3": (43.367, 2.722)}
+
+
+def test_a_gap_too_narrow_for_the_tight_margin_is_driven_through_at_the_recovery_tight_margin():
+    """The SUV's covering discs (2.06 m across) leave a 2.96 m gap less than tight_margin (0.45 m)
+    on both sides: no tight path keeps it, and the field's plan, bent by the overlapping bands, turns
+    beyond the steering limit. The recovery's tight path keeps recovery_tight_margin (0.3 m) and is
+    drivable; with the recovery keeping tight_margin there is none."""
+    from sim.bench.suite import load
+    from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE, Keepout
+    from vflpcd.core.shapes import Box
+
+    street = load("narrow_gap_parked")
+    cars = [ObstacleState(k, Box(4.6, 1.9), np.array(c), 0.0, np.zeros(2), 0.0) for k, c in PARKED.items()]
+    ctrl = make_vflpc(dataclasses.replace(street, obstacles=()))
+    ctrl.step(make_plant(street, 0).state, 0.0, cars)
+    job = ctrl._fresh_job(0.0)
+    planner = ctrl.planner
+    assert planner.params.tight_margin > planner.params.recovery_tight_margin
+    assert not planner.drivable(_plan_once(planner, job).plan)
+    plan = plan_job(planner, job).plan
+    assert planner.drivable(plan)
+    least = planner.least_gap(plan.trajectory, [Keepout(o, 0.0) for o in cars])
+    assert least >= planner.params.recovery_tight_margin - CLEAR_TOLERANCE
+    planner.params = dataclasses.replace(planner.params, recovery_tight_margin=planner.params.tight_margin)
+    assert not planner.drivable(plan_job(planner, job).plan)
+
+
 def test_the_refits_hyperparameter_bounds_come_from_the_config(straight):
     p = load_params("ground")
     assert p.gp_bounds == ((1e-6, 0.1), (0.3, 10.0), (1e-6, 1e-3))
