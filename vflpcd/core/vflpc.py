@@ -91,11 +91,12 @@ class PlanResult:
 
 def plan_job(planner, job: ReplanJob) -> PlanResult:
     """Run a replan (worker side; raises GuidanceError when no plan exists). A plan beyond the
-    robot's curvature limit is planned again by the planner's ``recovery`` (narrower margins); the
-    recovery plan is taken when it is drivable, else the first plan stands (and the safety gate
-    refuses it). A robot inside an obstacle's repulsive region (a tight path passes closer than the
-    field's margin), or a plan that leaves the field's grid (``within_grid``), is planned for by the
-    recovery at once."""
+    robot's curvature limit is planned again by the planner's ``recovery`` (narrower margins) and,
+    when that plan is beyond it too, by the recovery's ``closer`` planner (its tight path at
+    ``recovery_tight_margin``); the first drivable plan is taken, else the first plan stands (and
+    the safety gate refuses it). A robot inside an obstacle's repulsive region (a tight path passes
+    closer than the field's margin), or a plan that leaves the field's grid (``within_grid``), is
+    planned for by the recovery at once (and by its closer planner when that plan is undrivable)."""
     try:
         result = _plan_once(planner, job)
     except GuidanceError as exc:    # the robot is inside a repulsive region (a tight path passes closer
@@ -103,7 +104,8 @@ def plan_job(planner, job: ReplanJob) -> PlanResult:
         if narrow is None:              # planned with the recovery's narrow margins
             raise
         log.info("event=recovery_plan t=%.2f margin=%.2f reason=%s", job.t, narrow.params.safety_margin, exc)
-        return _plan_once(narrow, job)
+        result = _plan_once(narrow, job)
+        return result if narrow.drivable(result.plan) else _closer(narrow, job, result)
     if planner.drivable(result.plan):
         return result
     narrow = planner.recovery()
@@ -114,8 +116,25 @@ def plan_job(planner, job: ReplanJob) -> PlanResult:
     except GuidanceError:
         return result
     if not narrow.drivable(again.plan):
-        return result
+        return _closer(narrow, job, result)
     log.info("event=recovery_plan t=%.2f margin=%.2f", job.t, narrow.params.safety_margin)
+    return again
+
+
+def _closer(narrow, job: ReplanJob, fallback: PlanResult) -> PlanResult:
+    """The plan of ``narrow.closer()`` (the recovery's tight path at ``recovery_tight_margin``) when
+    there is one and it is drivable, else ``fallback``."""
+    closer = narrow.closer()
+    if closer is None:
+        return fallback
+    try:
+        again = _plan_once(closer, job)
+    except GuidanceError:
+        return fallback
+    if not closer.drivable(again.plan):
+        return fallback
+    log.info("event=recovery_plan t=%.2f margin=%.2f tight_margin=%.2f", job.t, closer.params.safety_margin,
+             closer.params.tight_margin)
     return again
 
 

@@ -159,23 +159,35 @@ class PlannerBase:
         return check_plan(plan.kappa, plan.v, PlanLimits(self.kappa_limit, self.a_lat_max), DRIVABLE_ROUNDING) is None
 
     def recovery(self) -> "PlannerBase | None":
-        """The same planner with the clearance beyond the body radius taken down to ``recovery_margin``,
-        the reactive band to ``recovery_reactive_margin`` and the tight path's clearance to
-        ``recovery_tight_margin`` (None when they already are that small): a robot that ended up
-        close to an obstacle (braked beside it, a pedestrian stepped near), or a gap between parked
-        cars narrower than the full margins, may find no drivable path that keeps them (the
-        overlapping reactive bands bend the field sharply, and a tight path that keeps
-        ``tight_margin`` on both sides of the gap has no room left to straighten it), and the safety
-        supervisor still keeps its own margin around the exact body."""
+        """The same planner with the clearance beyond the body radius taken down to ``recovery_margin``
+        and the reactive band to ``recovery_reactive_margin`` (None when they already are that small):
+        a robot that ended up close to an obstacle (braked beside it, a pedestrian stepped near), or a
+        gap between parked cars narrower than the full margins, may find no drivable path that keeps
+        them (the overlapping reactive bands bend the field sharply), and the safety supervisor still
+        keeps its own margin around the exact body."""
         p = self.params
-        tight = p.tight_length <= 0.0 or p.tight_margin <= p.recovery_tight_margin
         if (p.safety_margin <= p.recovery_margin and p.margin_per_speed == 0.0 and p.mover_margin_time == 0.0
-                and p.reactive_margin <= p.recovery_reactive_margin and p.reactive_per_speed == 0.0 and tight):
+                and p.reactive_margin <= p.recovery_reactive_margin and p.reactive_per_speed == 0.0):
             return None
         narrow = replace(p, safety_margin=min(p.safety_margin, p.recovery_margin), margin_per_speed=0.0,
                          mover_margin_time=0.0, reactive_margin=min(p.reactive_margin, p.recovery_reactive_margin),
-                         reactive_per_speed=0.0, tight_margin=min(p.tight_margin, p.recovery_tight_margin))
-        return type(self)(self.path, narrow, self.v_desired, self.a_lat_max, self.body_radius, self.dt,
+                         reactive_per_speed=0.0)
+        return self._with(narrow)
+
+    def closer(self) -> "PlannerBase | None":
+        """The planner whose tight path keeps ``recovery_tight_margin`` instead of ``tight_margin``
+        (None without a tight path, or when that is no smaller): tried after ``recovery`` when its
+        plan too is undrivable. A 3 m gap between parked cars leaves the SUV's covering discs (2.06 m
+        across) less than tight_margin on both sides: no tight path keeps it, and the field's own
+        path, bent where the overlapping bands end, is undrivable at every margin."""
+        p = self.params
+        if p.tight_length <= 0.0 or p.tight_margin <= p.recovery_tight_margin:
+            return None
+        return self._with(replace(p, tight_margin=p.recovery_tight_margin))
+
+    def _with(self, params: GuidanceParams) -> "PlannerBase":
+        """The same planner with other parameters."""
+        return type(self)(self.path, params, self.v_desired, self.a_lat_max, self.body_radius, self.dt,
                           kappa_limit=self.kappa_limit, body=self.body, loops=self.loops)
 
     def margin(self, o: ObstacleState) -> float:

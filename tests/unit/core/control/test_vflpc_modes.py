@@ -176,9 +176,10 @@ PARKED = {"right1": (31.993, -2.599), "right2": (36.611, -2.588), "right3": (42.
 
 def test_a_gap_too_narrow_for_the_tight_margin_is_driven_through_at_the_recovery_tight_margin():
     """The SUV's covering discs (2.06 m across) leave a 2.96 m gap less than tight_margin (0.45 m)
-    on both sides: no tight path keeps it, and the field's plan, bent by the overlapping bands, turns
-    beyond the steering limit. The recovery's tight path keeps recovery_tight_margin (0.3 m) and is
-    drivable; with the recovery keeping tight_margin there is none."""
+    on both sides: no tight path keeps it, and the field's plan, bent where the overlapping bands
+    end, turns beyond the steering limit, at the full margins and at the recovery's. The recovery's
+    closer planner, whose tight path keeps recovery_tight_margin (0.3 m), finds a drivable plan;
+    without it (recovery_tight_margin = tight_margin) there is none."""
     from sim.bench.suite import load
     from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE, Keepout
     from vflpcd.core.shapes import Box
@@ -191,6 +192,7 @@ def test_a_gap_too_narrow_for_the_tight_margin_is_driven_through_at_the_recovery
     planner = ctrl.planner
     assert planner.params.tight_margin > planner.params.recovery_tight_margin
     assert not planner.drivable(_plan_once(planner, job).plan)
+    assert not planner.drivable(_plan_once(planner.recovery(), job).plan)
     plan = plan_job(planner, job).plan
     assert planner.drivable(plan)
     least = planner.least_gap(plan.trajectory, [Keepout(o, 0.0) for o in cars])
