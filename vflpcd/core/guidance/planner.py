@@ -404,12 +404,19 @@ class PlannerBase:
         robot follows in its lane at whatever speed that takes, and crawls along a swerve only when
         the lane is blocked at every speed (a mover coming the other way in it). (xy, s, kappa, v,
         trajectory), or None when no such speed exists. ``states``: the movers' states, whose shapes
-        the body must not come into either (``touches_mover``)."""
-        for xy, at_rest in paths:
-            for f in FOLLOW_SPEEDS:
-                slower = self.timed(xy, f * self.v_desired, v0, t0, at_rest)
-                if not self.meets_mover(movers, slower[3]) and not self.touches_mover(states, slower[3]):
-                    return (xy,) + slower
+        the body must not come into either (``touches_mover``). Where no path at any speed keeps
+        out of the movers' regions (the fits of their grown shapes), the same search is made again
+        on their shapes alone (with ``states`` given): oncoming cars driven near the centre line reach into the lane with
+        their regions at every speed, and the field's swerve past the slow car, which then stood,
+        put the car in the oncoming lane (a jittered follow_slow_car: braked to rest there by the
+        failsafe when its replans failed, and hit head-on)."""
+        for regions in (True, False) if states else (True,):
+            for xy, at_rest in paths:
+                for f in FOLLOW_SPEEDS:
+                    slower = self.timed(xy, f * self.v_desired, v0, t0, at_rest)
+                    trajectory = slower[3]
+                    if not ((regions and self.meets_mover(movers, trajectory)) or self.touches_mover(states, trajectory)):
+                        return (xy,) + slower
         return None
 
 

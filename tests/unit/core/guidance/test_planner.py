@@ -9,7 +9,7 @@ from vflpcd.config.scenarios import default_guidance, load_scenario
 from vflpcd.core.guidance.grid import FieldGrid, integrate
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.config.params import guidance_params
-from vflpcd.core.guidance.planner import FOLLOW_SLACK, GuidancePlanner, _crossing_spans
+from vflpcd.core.guidance.planner import FOLLOW_SPEEDS, FOLLOW_SLACK, GuidancePlanner, _crossing_spans
 from vflpcd.core.guidance.speed import plan_speed, smooth_path
 from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE, Keepout
 from vflpcd.core.guidance.trajectory import timed_trajectory
@@ -349,15 +349,19 @@ def test_a_crosser_is_passed_behind_and_a_dawdler_where_it_leaves_the_path_least
 
 def test_a_plan_into_a_slow_car_it_cannot_pass_is_slowed_to_follow_it(params):
     """followed(): the lane's own points, speed-planned slower until the trajectory stays out of the
-    slow car's repulsive region; none for a car coming the other way on them."""
+    slow car's repulsive region; none for a car coming the other way on them. Where an oncoming
+    car near the centre line reaches into the lane with its region at every speed, the lane behind
+    the slow car is taken on the cars' shapes (given their states), not the swerve."""
     path = ReferencePath.line([0.0, 0.0], [120.0, 0.0])
     planner = GuidancePlanner(path, params, 7.0, 3.0, 1.25, 0.05)
     xy = np.column_stack([np.linspace(0.0, 100.0, 401), np.zeros(401)])
 
-    def mover(x, vx):
-        o = ObstacleState(id="car", shape=Box(4.5, 1.9), center=np.array([x, 0.0]), yaw=0.0,
-                          velocity=np.array([vx, 0.0]), stamp=0.0)
-        return planner.actual_term(planner.implicit(o), 0.0)
+    def state(x, vx, y=0.0):
+        return ObstacleState(id=f"car{x:g}", shape=Box(4.5, 1.9), center=np.array([x, y]),
+                             yaw=0.0 if vx >= 0 else np.pi, velocity=np.array([vx, 0.0]), stamp=0.0)
+
+    def mover(x, vx, y=0.0):
+        return planner.actual_term(planner.implicit(state(x, vx, y)), 0.0)
 
     lead = [mover(20.0, 3.0)]
     s, kappa, v = plan_speed(xy, 7.0, 3.0, params.a_accel, params.a_decel, 7.0)
@@ -366,6 +370,14 @@ def test_a_plan_into_a_slow_car_it_cannot_pass_is_slowed_to_follow_it(params):
     assert path_xy is xy
     assert not planner.meets_mover(lead, trajectory) and v.max() <= 7.0 and v[-1] < 3.5
     assert planner.followed([mover(60.0, -7.0)], [(xy, False)], 0.0, 7.0) is None
+    assert planner.followed([mover(60.0, -7.0)], [(xy, False)], 0.0, 7.0, [state(60.0, -7.0)]) is None
+    oncoming = (60.0, -7.0, 2.4)        # its side 0.5 m from the side of a car in the lane
+    movers, states = [mover(20.0, 3.0), mover(*oncoming)], [state(20.0, 3.0), state(*oncoming)]
+    slowed = [planner.timed(xy, f * 7.0, 7.0, 0.0, False)[3] for f in FOLLOW_SPEEDS]
+    assert all(planner.meets_mover(movers, trajectory) for trajectory in slowed)
+    assert planner.followed(movers, [(xy, False)], 0.0, 7.0) is None
+    path_xy, s, kappa, v, trajectory = planner.followed(movers, [(xy, False)], 0.0, 7.0, states)
+    assert path_xy is xy and not planner.touches_mover(states, trajectory) and v[-1] < 3.5
 
 
 def test_a_graze_of_a_movers_region_is_not_a_conflict_to_follow(params):
