@@ -105,37 +105,29 @@ def plan_job(planner, job: ReplanJob) -> PlanResult:
             raise
         log.info("event=recovery_plan t=%.2f margin=%.2f reason=%s", job.t, narrow.params.safety_margin, exc)
         result = _plan_once(narrow, job)
-        return result if narrow.drivable(result.plan) else _closer(narrow, job, result)
+        if narrow.drivable(result.plan):
+            return result
+        return _drivable(narrow.closer(), job) or result
     if planner.drivable(result.plan):
         return result
     narrow = planner.recovery()
-    if narrow is None:
-        return result
-    try:
-        again = _plan_once(narrow, job)
-    except GuidanceError:
-        return result
-    if not narrow.drivable(again.plan):
-        return _closer(narrow, job, result)
-    log.info("event=recovery_plan t=%.2f margin=%.2f", job.t, narrow.params.safety_margin)
-    return again
+    return _drivable(narrow, job) or _drivable(narrow and narrow.closer(), job) or result
 
 
-def _closer(narrow, job: ReplanJob, fallback: PlanResult) -> PlanResult:
-    """The plan of ``narrow.closer()`` (the recovery's tight path at ``recovery_tight_margin``) when
-    there is one and it is drivable, else ``fallback``."""
-    closer = narrow.closer()
-    if closer is None:
-        return fallback
+def _drivable(planner, job: ReplanJob) -> PlanResult | None:
+    """``planner``'s plan for ``job`` when there is a planner, it finds a plan, and that plan is
+    drivable; None otherwise."""
+    if planner is None:
+        return None
     try:
-        again = _plan_once(closer, job)
+        result = _plan_once(planner, job)
     except GuidanceError:
-        return fallback
-    if not closer.drivable(again.plan):
-        return fallback
-    log.info("event=recovery_plan t=%.2f margin=%.2f tight_margin=%.2f", job.t, closer.params.safety_margin,
-             closer.params.tight_margin)
-    return again
+        return None
+    if not planner.drivable(result.plan):
+        return None
+    log.info("event=recovery_plan t=%.2f margin=%.2f tight_margin=%.2f", job.t, planner.params.safety_margin,
+             planner.params.tight_margin)
+    return result
 
 
 def _plan_once(planner, job: ReplanJob) -> PlanResult:
