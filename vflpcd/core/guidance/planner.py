@@ -8,7 +8,7 @@
    side that leaves the path least, i.e. the side where the repulsive region reaches less far
    across the path (measured along the path normal at the obstacle); gamma_i is then the sign
    that makes gamma_i E grad varphi_i point along the path on that side. A mover that crosses the
-   path faster than ``CROSSING_SPEED`` (1 m/s: walkers too) is yielded to: the plan keeps to the
+   path faster than ``CROSSING_SPEED`` (0.7 m/s: slow walkers too) is yielded to: the plan keeps to the
    route and slows before the crossing until its timed trajectory stays clear (``yielding``); where
    no such speed exists it is passed behind, on the side it comes from (swerving to the side it
    moves to puts the robot in its way).
@@ -55,8 +55,11 @@ VIRTUAL_LEAD = np.radians(30.0)  # heading change the virtual obstacle gives bef
 # that passes on the side a walker walks to follows its region across the road (bench tick's
 # scaling road at 2.0: the plan left the road beside a 1.4 m/s walker and every replan then failed;
 # pedestrian_appears: J_MC 2.09 at 2.0, 0.12 at 1.0). Slower movers are passed where they leave the
-# path least (bench variants seed 46 at 0.5: passing behind a 0.87 m/s walker boxed the car in).
-CROSSING_SPEED = 1.0
+# path least (bench variants seed 46 at 0.5: passing behind a 0.87 m/s walker boxed the car in, before
+# crossers were yielded to). At 1.0 a walker slowed to 0.99 m/s (a pedestrian_appears copy of
+# `bench jitter --scale 3`) was neither yielded to nor passed behind: the car swerved 6.1 m across
+# the road ahead of it as it walked on (J_MC 7.9; 0.014 at 0.7, 0.31 m off the route).
+CROSSING_SPEED = 0.7
 FOLLOW_SPEEDS = (0.8, 0.6, 0.45, 0.3, 0.2, 0.1)  # of v_desired: slower speed plans tried behind a mover
 # A plan is slowed to follow only when it enters a mover's repulsive region deeper than this fraction
 # of the level |c_i|: the movers placed by MOVER_PASSES at the last pass's times leave grazes of

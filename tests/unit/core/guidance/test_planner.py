@@ -333,11 +333,12 @@ def test_a_car_crossing_the_route_is_yielded_to_not_swerved_round(params, start_
     assert planner.meets_mover(plan.field.movers, full_speed)                  # at full speed it would meet the car
 
 
-@pytest.mark.parametrize("speed, side", [(4.0, -1.0), (-4.0, 1.0), (1.2, -1.0), (-1.2, 1.0), (0.6, 1.0)])
+@pytest.mark.parametrize("speed, side", [(4.0, -1.0), (-4.0, 1.0), (1.2, -1.0), (-1.2, 1.0), (0.9, -1.0), (-0.9, 1.0),
+                                         (0.6, 1.0)])
 def test_a_crosser_is_passed_behind_and_a_dawdler_where_it_leaves_the_path_least(params, speed, side):
-    """A cyclist at 4 m/s or a walker at 1.2 m/s crossing from either side is passed on the side it
-    comes from; one that crosses at 0.6 m/s, 1 m right of the path, is passed on the left (the side
-    its region reaches less far)."""
+    """A cyclist at 4 m/s or a walker at 1.2 m/s, or a slow one at 0.9 m/s, crossing from either side
+    is passed on the side it comes from; one that crosses at 0.6 m/s, 1 m right of the path, is
+    passed on the left (the side its region reaches less far)."""
     path = ReferencePath.line([0.0, 0.0], [80.0, 0.0])
     planner = GuidancePlanner(path, params, 6.0, 3.0, 1.0, 0.05)
     y = -1.0 if speed > 0 else 1.0
