@@ -408,18 +408,23 @@ class PlannerBase:
         the lane is blocked at every speed (a mover coming the other way in it). (xy, s, kappa, v,
         trajectory), or None when no such speed exists. ``states``: the movers' states, whose shapes
         the body must not come into either (``touches_mover``). Where no path at any speed keeps
-        out of the movers' regions (the fits of their grown shapes), the same search is made again
-        on their shapes alone (with ``states`` given): oncoming cars driven near the centre line reach into the lane with
-        their regions at every speed, and the field's swerve past the slow car, which then stood,
-        put the car in the oncoming lane (a jittered follow_slow_car: braked to rest there by the
-        failsafe when its replans failed, and hit head-on)."""
-        for regions in (True, False) if states else (True,):
-            for xy, at_rest in paths:
-                for f in FOLLOW_SPEEDS:
-                    slower = self.timed(xy, f * self.v_desired, v0, t0, at_rest)
-                    trajectory = slower[3]
-                    if not ((regions and self.meets_mover(movers, trajectory)) or self.touches_mover(states, trajectory)):
-                        return (xy,) + slower
+        out of the movers' regions (the fits of their grown shapes), the ones that entered them are
+        taken again, in the same order, on the shapes alone (with ``states`` given): oncoming cars
+        driven near the centre line reach into the lane with their regions at every speed, and the
+        field's swerve past the slow car, which then stood, put the car in the oncoming lane (a
+        jittered follow_slow_car: braked to rest there by the failsafe when its replans failed,
+        and hit head-on)."""
+        entered = []        # (xy, slowed) whose trajectory enters a mover's region
+        for xy, at_rest in paths:
+            for f in FOLLOW_SPEEDS:
+                slower = self.timed(xy, f * self.v_desired, v0, t0, at_rest)
+                if self.meets_mover(movers, slower[3]):
+                    entered.append((xy, slower))
+                elif not self.touches_mover(states, slower[3]):
+                    return (xy,) + slower
+        for xy, slower in entered if states else ():
+            if not self.touches_mover(states, slower[3]):
+                return (xy,) + slower
         return None
 
 
