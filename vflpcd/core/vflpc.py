@@ -66,6 +66,11 @@ COURSE_MIN_SPEED = 0.5   # m/s: below it a replan leaves along the yaw (the cour
 # it (follow_slow_car J_MC 5.4, least clearance 0.40 m; 0.058 and 1.50 m with 7 or 10; 0.063 and 1.42 m
 # with 12 or 15).
 LIGHT_SATURATION = 0.5
+# s between replans while the plan followed has a stretch beyond the robot's limits: the safety gate
+# admits a plan whose look-ahead is drivable (``plan_job``'s last resort when no plan keeps the
+# limits), and without a new obstacle or the plan's end nothing asked again, so the car drove on
+# to that stretch and the failsafe stopped it there (a jittered follow_slow_car).
+UNDRIVABLE_RETRY = 0.5
 
 
 @dataclass(frozen=True)
@@ -360,6 +365,7 @@ class VFLPC(ControllerBase):
         self.fallbacks = 0
         self._held: np.ndarray | None = None     # the last plan ``_solve`` solved, and the tick it was solved at
         self._held_tick = 0
+        self._retry_at = np.inf         # when a replan is asked again for a plan beyond the limits (UNDRIVABLE_RETRY)
         self.replans = 0
         self.replan_failures = 0
         self.stale_replans = 0
@@ -453,6 +459,8 @@ class VFLPC(ControllerBase):
                 self.replan_failed(job, f"refused: {refused}")
                 return
         self._plan, self._ends_path = plan, result.ends_path
+        now = job.t if self._t_last is None else self._t_last
+        self._retry_at = np.inf if self.planner.drivable(plan) else now + UNDRIVABLE_RETRY
         self._horizon = self._reference_rows(plan)      # between ticks, not in the next tick
         self._signature = _velocities(job.obstacles)
         if self._asked is not None and self._asked[0] is job:
@@ -554,14 +562,18 @@ class VFLPC(ControllerBase):
         return any(math.dist(sig[k], ref[k]) > self.params.velocity_change for k in sig)
 
     def _guidance(self, pos, vel, state, t: float, obstacles) -> None:
-        """Replan now if there is no reference yet, else leave a due replan to ``background``."""
+        """Replan now if there is no reference yet, else leave a due replan to ``background``: due
+        when the obstacle picture changed (``_changed``), when the plan is about to run out, and every
+        ``UNDRIVABLE_RETRY`` s while the plan followed has a stretch beyond the robot's limits."""
         plan = self._plan
         left = -np.inf if plan is None else plan.trajectory.t[-1] - t
         finished = plan is not None and plan.reached and self._ends_path
-        due = plan is None or self._changed(obstacles) or (
+        due = plan is None or self._changed(obstacles) or t >= self._retry_at or (
             not finished and left < self.N * self.dt + self.params.end_margin)
         if not due:
             return
+        if np.isfinite(self._retry_at):
+            self._retry_at = t + UNDRIVABLE_RETRY
         heading = self._course(state, vel) if self.dim == 2 else None
         job = ReplanJob(self._s, pos, vel, heading, t, obstacles)
         if plan is None:

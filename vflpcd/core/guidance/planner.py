@@ -159,7 +159,11 @@ class PlannerBase:
     def drivable(self, plan: "GuidancePlan") -> bool:
         """Whether the plan keeps the robot's curvature limit (``kappa_limit``) and its lateral
         acceleration: the safety monitors' ``check_plan``, without their tolerance."""
-        return check_plan(plan.kappa, plan.v, PlanLimits(self.kappa_limit, self.a_lat_max), DRIVABLE_ROUNDING) is None
+        return self.keeps_limits(plan.kappa, plan.v)
+
+    def keeps_limits(self, kappa: np.ndarray, v: np.ndarray) -> bool:
+        """``drivable`` for a path's curvature kappa (K,) and speed plan v (K,)."""
+        return check_plan(kappa, v, PlanLimits(self.kappa_limit, self.a_lat_max), DRIVABLE_ROUNDING) is None
 
     def recovery(self) -> "PlannerBase | None":
         """The same planner with the clearance beyond the body radius taken down to ``recovery_margin``
@@ -413,11 +417,16 @@ class PlannerBase:
         driven near the centre line reach into the lane with their regions at every speed, and the
         field's swerve past the slow car, which then stood, put the car in the oncoming lane (a
         jittered follow_slow_car: braked to rest there by the failsafe when its replans failed,
-        and hit head-on)."""
+        and hit head-on). A slowed plan beyond the robot's limits (``keeps_limits``) is never
+        taken: a swerve the field wove between the movers (0.46 1/m against the car's 0.17) stood
+        against the lane that only met the region of an oncoming car passing beside it, and the
+        car followed the swerve off the road until its undrivable stretch came near."""
         entered = []        # (xy, slowed) whose trajectory enters a mover's region
         for xy, at_rest in paths:
             for f in FOLLOW_SPEEDS:
                 slower = self.timed(xy, f * self.v_desired, v0, t0, at_rest)
+                if not self.keeps_limits(slower[1], slower[2]):
+                    continue
                 if self.meets_mover(movers, slower[3]):
                     entered.append((xy, slower))
                 elif not self.touches_mover(states, slower[3]):

@@ -83,3 +83,27 @@ def test_an_obstacle_that_goes_asks_a_replan(ctrl):
     ctrl.step(ctrl.state0, 2 * DT, [])
     gone = ctrl.take_replan()
     assert gone is not None and gone.obstacles == ()
+
+
+def test_a_plan_with_a_stretch_beyond_the_limits_is_planned_again_until_one_keeps_them(ctrl):
+    """The safety gate admits a plan whose look-ahead is drivable; one that breaks the steering
+    limit further on is planned again every UNDRIVABLE_RETRY s (nothing else would ask before the
+    car reaches that stretch), and a drivable replan ends the retries."""
+    from vflpcd.core.vflpc import UNDRIVABLE_RETRY, PlanResult
+
+    job = ctrl._fresh_job(0.0)                              # from the state of the fixture's first tick
+    good = plan_job(ctrl.planner, job)
+    kappa = good.plan.kappa.copy()
+    kappa[-5:] = 3.0 * ctrl.planner.kappa_limit                # far beyond the gate's look-ahead
+    ctrl.install_plan(job, PlanResult(dataclasses.replace(good.plan, kappa=kappa), good.ends_path))
+    steps = int(round(UNDRIVABLE_RETRY / DT))
+    for k in range(1, steps):
+        ctrl.step(ctrl.state0, k * DT)
+        assert ctrl.take_replan() is None, k
+    ctrl.step(ctrl.state0, steps * DT)
+    retry = ctrl.take_replan()
+    assert retry is not None and retry.t == pytest.approx(steps * DT)
+    ctrl.install_plan(retry, plan_job(ctrl.planner, retry))
+    for k in range(steps + 1, 3 * steps):
+        ctrl.step(ctrl.state0, k * DT)
+        assert ctrl.take_replan() is None, k

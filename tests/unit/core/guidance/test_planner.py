@@ -352,7 +352,8 @@ def test_a_plan_into_a_slow_car_it_cannot_pass_is_slowed_to_follow_it(params):
     """followed(): the lane's own points, speed-planned slower until the trajectory stays out of the
     slow car's repulsive region; none for a car coming the other way on them. Where an oncoming
     car near the centre line reaches into the lane with its region at every speed, the lane behind
-    the slow car is taken on the cars' shapes (given their states), not the swerve."""
+    the slow car is taken on the cars' shapes (given their states), not the swerve; a swerve that
+    keeps out of the regions comes first, unless it breaks the steering limit."""
     path = ReferencePath.line([0.0, 0.0], [120.0, 0.0])
     planner = GuidancePlanner(path, params, 7.0, 3.0, 1.25, 0.05)
     xy = np.column_stack([np.linspace(0.0, 100.0, 401), np.zeros(401)])
@@ -379,6 +380,16 @@ def test_a_plan_into_a_slow_car_it_cannot_pass_is_slowed_to_follow_it(params):
     assert planner.followed(movers, [(xy, False)], 0.0, 7.0) is None
     path_xy, s, kappa, v, trajectory = planner.followed(movers, [(xy, False)], 0.0, 7.0, states)
     assert path_xy is xy and not planner.touches_mover(states, trajectory) and v[-1] < 3.5
+    # a swerve clear of both regions is taken before the lane on the shapes; with a stretch beyond
+    # the steering limit (a weave of the field between movers) it is not taken at any speed
+    ease = np.clip(xy[:, 0] / 30.0, 0.0, 1.0)
+    swerve = np.column_stack([xy[:, 0], -5.0 * ease ** 2 * (3.0 - 2.0 * ease)])
+    assert planner.followed(movers, [(xy, False), (swerve, False)], 0.0, 7.0, states)[0] is swerve
+    kinked = swerve.copy()
+    kinked[300:, 1] += 1.0                      # a 1 m step sideways at x = 75 m
+    assert planner.followed(movers, [(xy, False), (kinked, False)], 0.0, 7.0, states)[0] is kinked
+    car = GuidancePlanner(path, params, 7.0, 3.0, 1.25, 0.05, kappa_limit=0.174)     # the SUV's steering
+    assert car.followed(movers, [(xy, False), (kinked, False)], 0.0, 7.0, states)[0] is xy
 
 
 def test_a_graze_of_a_movers_region_is_not_a_conflict_to_follow(params):
