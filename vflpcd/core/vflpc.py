@@ -51,6 +51,7 @@ from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.guidance.speed import heading_curvature
+from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.norms import vector_norm
 from vflpcd.core.path import nearest_on_polyline, unit_differences
@@ -96,12 +97,15 @@ class PlanResult:
 
 def plan_job(planner, job: ReplanJob) -> PlanResult:
     """Run a replan (worker side; raises GuidanceError when no plan exists). A plan beyond the
-    robot's curvature limit is planned again by the planner's ``recovery`` (narrower margins) and,
-    when that plan is beyond it too, by the recovery's ``closer`` planner (its tight path at
-    ``recovery_tight_margin``); the first drivable plan is taken, else the first plan stands (and
-    the safety gate refuses it). A robot inside an obstacle's repulsive region (a tight path passes
-    closer than the field's margin), or a plan that leaves the field's grid (``within_grid``), is
-    planned for by the recovery at once (and by its closer planner when that plan is undrivable)."""
+    robot's curvature limit, or whose body runs into a static obstacle's shape (``_usable``), is
+    planned again by the planner's ``recovery`` (narrower margins) and then by the recovery's
+    ``closers`` (its tight path at ``recovery_tight_margin``, then at ``least_tight_margin``); the
+    first usable plan is taken, else the first plan stands when it keeps clear of the static
+    obstacles (and the safety gate judges its limits), and no plan exists when it does not. A
+    robot inside an obstacle's repulsive region (a tight path passes closer than the field's
+    margin), or a plan that leaves the field's grid (``within_grid``), is planned for by the
+    recovery at once (and by its closers when that plan is not usable)."""
+    statics = [o for o in job.obstacles if not o.moving]
     try:
         result = _plan_once(planner, job)
     except GuidanceError as exc:    # the robot is inside a repulsive region (a tight path passes closer
@@ -110,28 +114,43 @@ def plan_job(planner, job: ReplanJob) -> PlanResult:
             raise
         log.info("event=recovery_plan t=%.2f margin=%.2f reason=%s", job.t, narrow.params.safety_margin, exc)
         result = _plan_once(narrow, job)
-        if narrow.drivable(result.plan):
+        if _usable(narrow, result, statics):
             return result
-        return _drivable(narrow.closer(), job) or result
-    if planner.drivable(result.plan):
+        return _first_usable(narrow.closers(), job, statics) or _clear(narrow, result, statics)
+    if _usable(planner, result, statics):
         return result
     narrow = planner.recovery()
-    return _drivable(narrow, job) or _drivable(narrow and narrow.closer(), job) or result
+    fallbacks = () if narrow is None else (narrow,) + narrow.closers()
+    return _first_usable(fallbacks, job, statics) or _clear(planner, result, statics)
 
 
-def _drivable(planner, job: ReplanJob) -> PlanResult | None:
-    """``planner``'s plan for ``job`` when there is a planner, it finds a plan, and that plan is
-    drivable; None otherwise."""
-    if planner is None:
-        return None
-    try:
-        result = _plan_once(planner, job)
-    except GuidanceError:
-        return None
-    if not planner.drivable(result.plan):
-        return None
-    log.info("event=recovery_plan t=%.2f margin=%.2f tight_margin=%.2f", job.t, planner.params.safety_margin,
-             planner.params.tight_margin)
+def _usable(planner, result: PlanResult, statics: Sequence[ObstacleState]) -> bool:
+    """Whether the plan is drivable (``PlannerBase.drivable``) and keeps the body's covering discs out
+    of the static obstacles' shapes (to ``CLEAR_TOLERANCE``): in a clutter of parked cars the field's
+    paths ran into them (discs 0.6-1.0 m deep) while the route itself kept 0.18 m."""
+    return planner.drivable(result.plan) and planner.static_gap(result.plan, statics) >= -CLEAR_TOLERANCE
+
+
+def _first_usable(planners, job: ReplanJob, statics: Sequence[ObstacleState]) -> PlanResult | None:
+    """The plan of the first of ``planners`` that finds a usable one for ``job`` (None if none does)."""
+    for planner in planners:
+        try:
+            result = _plan_once(planner, job)
+        except GuidanceError:
+            continue
+        if _usable(planner, result, statics):
+            log.info("event=recovery_plan t=%.2f margin=%.2f tight_margin=%.2f", job.t,
+                     planner.params.safety_margin, planner.params.tight_margin)
+            return result
+    return None
+
+
+def _clear(planner, result: PlanResult, statics: Sequence[ObstacleState]) -> PlanResult:
+    """The plan (beyond the limits: the safety gate judges it) when it keeps clear of the static
+    obstacles; GuidanceError naming how deep it runs into one otherwise."""
+    gap = planner.static_gap(result.plan, statics)
+    if gap < -CLEAR_TOLERANCE:
+        raise GuidanceError(f"every plan runs into a static obstacle (the body {-gap:.2f} m into its shape)")
     return result
 
 

@@ -46,6 +46,7 @@ class GuidanceParams:
     recovery_margin: float = 0.1
     recovery_reactive_margin: float = 0.5
     recovery_tight_margin: float = 0.3
+    least_tight_margin: float = 0.15
     tight_length: float = 0.0
     tight_margin: float = 0.4
     tight_mover_window: float = 0.0

@@ -165,6 +165,11 @@ class PlannerBase:
         """``drivable`` for a path's curvature kappa (K,) and speed plan v (K,)."""
         return check_plan(kappa, v, PlanLimits(self.kappa_limit, self.a_lat_max), DRIVABLE_ROUNDING) is None
 
+    def static_gap(self, plan: "GuidancePlan", statics: Sequence[ObstacleState]) -> float:
+        """The least gap (m) between the body's covering discs along the plan's path and the static
+        obstacles' shapes (+inf without any near it): negative where the path runs into one."""
+        return float(np.min(disc_gaps(plan.xy, self.body, [Keepout(o, 0.0) for o in statics])))
+
     def recovery(self) -> "PlannerBase | None":
         """The same planner with the clearance beyond the body radius taken down to ``recovery_margin``
         and the reactive band to ``recovery_reactive_margin`` (None when they already are that small):
@@ -181,16 +186,23 @@ class PlannerBase:
                          reactive_per_speed=0.0)
         return self._with(narrow)
 
-    def closer(self) -> "PlannerBase | None":
-        """The planner whose tight path keeps ``recovery_tight_margin`` instead of ``tight_margin``
-        (None without a tight path, or when that is no smaller): tried after ``recovery`` when its
-        plan too is undrivable. A 3 m gap between parked cars leaves the SUV's covering discs (2.06 m
-        across) less than tight_margin on both sides: no tight path keeps it, and the field's own
-        path, bent where the overlapping bands end, is undrivable at every margin."""
+    def closers(self) -> tuple["PlannerBase", ...]:
+        """The planners whose tight path keeps ``recovery_tight_margin``, then ``least_tight_margin``,
+        instead of ``tight_margin`` (each only when smaller than the one before; none without a tight
+        path): tried in turn after ``recovery`` when its plan too is undrivable. A 3 m gap between
+        parked cars leaves the SUV's covering discs (2.06 m across) less than tight_margin on both
+        sides: no tight path keeps it, and the field's own path, bent where the overlapping bands
+        end, is undrivable at every margin; between rows 2.5 m apart the discs keep 0.18 m on the
+        route itself."""
         p = self.params
-        if p.tight_length <= 0.0 or p.tight_margin <= p.recovery_tight_margin:
-            return None
-        return self._with(replace(p, tight_margin=p.recovery_tight_margin))
+        if p.tight_length <= 0.0:
+            return ()
+        out, last = [], p.tight_margin
+        for margin in (p.recovery_tight_margin, p.least_tight_margin):
+            if margin < last:
+                out.append(self._with(replace(p, tight_margin=margin)))
+                last = margin
+        return tuple(out)
 
     def _with(self, params: GuidanceParams) -> "PlannerBase":
         """The same planner with other parameters."""

@@ -17,7 +17,8 @@ from vflpcd.controllers.vflpc import load_params, make_vflpc, make_vflpc_ml
 from vflpcd.core.guidance.planner import PlannerBase
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.shapes import Circle
-from vflpcd.core.vflpc import _plan_once, plan_job
+from vflpcd.core.vflpc import ReplanJob, _plan_once, plan_job
+from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE
 from sim.plants import make_plant
 from vflpcd.base.paths import config_dir
 from vflpcd.base.tomlread import load_toml
@@ -179,7 +180,7 @@ def test_a_gap_too_narrow_for_the_tight_margin_is_driven_through_at_the_recovery
     on both sides: no tight path keeps it, and the field's plan, bent where the overlapping bands
     end, turns beyond the steering limit, at the full margins and at the recovery's. The recovery's
     closer planner, whose tight path keeps recovery_tight_margin (0.3 m), finds a drivable plan;
-    without it (recovery_tight_margin = tight_margin) there is none."""
+    without the closer planners there is none (the field's plans run into the cars)."""
     from sim.bench.suite import load
     from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE, Keepout
     from vflpcd.core.shapes import Box
@@ -197,8 +198,58 @@ def test_a_gap_too_narrow_for_the_tight_margin_is_driven_through_at_the_recovery
     assert planner.drivable(plan)
     least = planner.least_gap(plan.trajectory, [Keepout(o, 0.0) for o in cars])
     assert least >= planner.params.recovery_tight_margin - CLEAR_TOLERANCE
-    planner.params = dataclasses.replace(planner.params, recovery_tight_margin=planner.params.tight_margin)
-    assert not planner.drivable(plan_job(planner, job).plan)
+    tight = planner.params.tight_margin
+    planner.params = dataclasses.replace(planner.params, recovery_tight_margin=tight, least_tight_margin=tight)
+    with pytest.raises(GuidanceError, match="runs into a static obstacle"):     # the field's plans do
+        plan_job(planner, job)
+
+
+# Staggered rows with 2.48 m between a car on the right and one on the left at x = 31.5-32.2 m:
+# the discs keep 0.18 m driving the street's centre line
+TIGHT = {"right1": (27.077, -2.824), "right2": (33.845, -2.161), "right3": (38.359, -2.853),
+         "right4": (49.701, -2.988), "left1": (29.892, 2.22), "left2": (41.071, 2.395), "left3": (45.326, 3.191)}
+# Two gaps that overlap by only 2.08 m across the street (for a 1.9 m wide car) as it passes from one to the next
+SHUT = {"right1": (29.679, -2.521), "right2": (34.539, -1.993), "right3": (40.007, -2.743),
+        "right4": (48.136, -2.022), "left1": (35.15, 2.671), "left2": (39.714, 1.99), "left3": (42.168, 3.131)}
+
+
+def _street_job(parked):
+    """VF-LPC on the suite's street and the replan job at its start among the ``parked`` cars."""
+    from sim.bench.suite import load
+    from vflpcd.core.shapes import Box
+
+    street = load("narrow_gap_parked")
+    cars = tuple(ObstacleState(k, Box(4.6, 1.9), np.array(c), 0.0, np.zeros(2), 0.0) for k, c in parked.items())
+    ctrl = make_vflpc(dataclasses.replace(street, obstacles=()))
+    x0 = make_plant(street, 0).state
+    return ctrl.planner, ReplanJob(0.0, x0[:2].copy(), np.array([x0[3], 0.0]), float(x0[2]), 0.0, cars)
+
+
+def test_a_gap_narrower_still_is_driven_through_at_the_least_tight_margin_and_no_plan_runs_into_a_car():
+    """Where the discs keep less than recovery_tight_margin, the field's plans at every margin
+    run into the parked cars or break the steering limit: the tight path at least_tight_margin
+    (0.15 m) is taken; without it every plan runs into a car, and plan_job gives none (the previous
+    plan stays; at the start the robot does not set off)."""
+    planner, job = _street_job(TIGHT)
+    statics = list(job.obstacles)
+    for p in (planner, planner.recovery(), planner.closers()[0]):
+        plan = _plan_once(p, job).plan
+        assert not p.drivable(plan) or p.static_gap(plan, statics) < -CLEAR_TOLERANCE
+    plan = plan_job(planner, job).plan
+    assert planner.drivable(plan)
+    assert planner.static_gap(plan, statics) >= planner.params.least_tight_margin - CLEAR_TOLERANCE
+    planner.params = dataclasses.replace(planner.params, least_tight_margin=planner.params.recovery_tight_margin)
+    with pytest.raises(GuidanceError, match="runs into a static obstacle"):
+        plan_job(planner, job)
+
+
+def test_a_passage_narrower_than_the_body_and_its_least_margin_gets_no_plan():
+    """Two gaps between staggered rows overlap by 2.08 m across the street for the 1.9 m wide car:
+    no plan keeps the discs out of the cars, and the robot is not sent into it (it stopped there
+    0.17 m from a car before, on a failsafe when every replan from there failed)."""
+    planner, job = _street_job(SHUT)
+    with pytest.raises(GuidanceError, match="runs into a static obstacle"):
+        plan_job(planner, job)
 
 
 def test_the_refits_hyperparameter_bounds_come_from_the_config(straight):
