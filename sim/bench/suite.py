@@ -8,8 +8,9 @@ controller (default VF-LPC and the ground baselines NMPC (MPC-CBF), NMPC-RTI, Ko
 runs each scene once, behind the safety supervisor, through ``sim.bench.impc.run_one``.
 
 It prints one row per scene and controller (outcome, collisions, least clearance, J_MC, RMS and
-peak lateral error, longitudinal jerk p99 / max, t_cal median, background jobs median / p99 /
-max), then per controller: the scenes completed without a collision, the collisions, the scenes
+peak lateral error, peak lateral acceleration against the scene's ``a_lat_max`` (the limit the
+guidance plans within; the NMPCs, which track the route without it, may exceed it), longitudinal
+jerk p99 / max, t_cal median, background jobs median / p99 / max), then per controller: the scenes completed without a collision, the collisions, the scenes
 where its J_MC is the lowest among the controllers that completed that scene without a collision,
 its background jobs over every scene taken together (a scene runs a handful of replans, so a row's
 p99 is close to its maximum), and for VF-LPC the scenes where its
@@ -34,7 +35,7 @@ from sim.plot import save_png
 CONTROLLERS = ("vflpc", "nmpc_cbf", "nmpc_rti", "koopman_mpc", "pure_pursuit")
 PEAK_MARGIN = 1.0        # m: VF-LPC's peak lateral error may exceed the NMPC's by this much
 KEYS = ("outcome", "collisions", "min_clearance", "J_MC", "rms_lateral_error", "peak_lateral_error",
-        "jerk_p99", "jerk_max", "t_cal_median", "t_com", "failsafe", "interventions", "background_jobs",
+        "peak_lateral_acceleration", "jerk_p99", "jerk_max", "t_cal_median", "t_com", "failsafe", "interventions", "background_jobs",
         "t_background_median", "t_background_p99", "t_background_max")
 
 
@@ -90,14 +91,19 @@ def totals(rows: list[dict], controllers: tuple[str, ...]) -> dict:
 
 
 HEAD = (f"{'scenario':<24} {'controller':<20} {'outcome':<10} {'coll':>4} {'clear m':>7} {'J_MC':>7} "
-        f"{'RMS lat':>7} {'peak lat':>8} {'jerk p99':>8} {'jerk max':>8} {'t_cal ms':>8} {'bg med/p99/max ms':>18}")
+        f"{'RMS lat':>7} {'peak lat':>8} {'a_lat/limit':>11} {'jerk p99':>8} {'jerk max':>8} {'t_cal ms':>8} {'bg med/p99/max ms':>18}")
 
 
 def row_line(r: dict) -> str:
     return (f"{r['scenario']:<24} {LABELS[r['controller']]:<20} {r['outcome']:<10} {r['collisions']:>4} "
             f"{_fmt(r['min_clearance']):>7} {_fmt(r['J_MC']):>7} {_fmt(r['rms_lateral_error']):>7} "
-            f"{_fmt(r['peak_lateral_error']):>8} {_fmt(r['jerk_p99']):>8} {_fmt(r['jerk_max']):>8} "
+            f"{_fmt(r['peak_lateral_error']):>8} {_a_lat(r):>11} {_fmt(r['jerk_p99']):>8} {_fmt(r['jerk_max']):>8} "
             f"{_fmt(r['t_cal_median'], 1e3):>8} {_background(r):>18}")
+
+
+def _a_lat(r: dict) -> str:
+    """"peak / limit" lateral acceleration (m/s^2) of a row."""
+    return f"{_fmt(r['peak_lateral_acceleration'], digits=2)}/{r['a_lat_max']:g}"
 
 
 def totals_text(t: dict) -> str:
@@ -188,7 +194,8 @@ def bench_suite(out: Path, controllers: tuple[str, ...] = CONTROLLERS, only: tup
     for name, sc in scenes.items():
         for c in controllers:
             run = run_one("suite", c, sc)
-            r = {"scenario": name, "controller": c, "wall_s": run.wall, **{k: run.metrics[k] for k in KEYS},
+            r = {"scenario": name, "controller": c, "wall_s": run.wall, "a_lat_max": sc.a_lat_max,
+                 **{k: run.metrics[k] for k in KEYS},
                  "background_s": job_times(run.record.t_background).tolist()}
             rows.append(r)
             paths[name, c] = run.record.position[:, :2]
