@@ -151,6 +151,19 @@ def half_planes(x: np.ndarray, t: np.ndarray, regions: Sequence[Region]) -> tupl
     return n, b
 
 
+def regions_clear(x: np.ndarray, t: np.ndarray, regions: Sequence[Region], eased: np.ndarray) -> bool:
+    """Whether the points x (K, d) reached at t (K,), but their first two and last two and the
+    ``eased`` ones (K,) (``lead_in``), lie outside every repulsive region."""
+    return all(np.all((g.values(x, t) > g.c)[2:-2] | eased[2:-2]) for g in regions)
+
+
+def compiled_clear(loop, rows: np.ndarray, x: np.ndarray, t: np.ndarray, eased: np.ndarray) -> bool:
+    """``regions_clear`` by ``half_plane_kernel.clear_loop`` compiled (``loop``), for the planar regions
+    whose ``ObstacleImplicit.row`` are ``rows`` (R, 12)."""
+    return bool(loop(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(t, dtype=float), rows, 2,
+                     len(x) - 2, np.ascontiguousarray(eased)))
+
+
 def compiled_half_planes(loop, rows: np.ndarray, x: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``half_planes`` by ``half_plane_kernel.half_planes_loop`` compiled (``loop``), for the planar
     regions whose ``ObstacleImplicit.row`` are ``rows`` (R, 12)."""
@@ -290,14 +303,16 @@ def _solve_numpy(low0: np.ndarray, f0: np.ndarray, n: np.ndarray, b: np.ndarray,
 
 
 def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequence[Region],
-              heading: np.ndarray | None = None, pin_end: bool = False, loop=None, planes=None) -> np.ndarray:
+              heading: np.ndarray | None = None, pin_end: bool = False, loop=None, planes=None,
+              clears=None) -> np.ndarray:
     """The path xy (K, d) (reached at times (K,)) with its peak curvature brought within kappa_max
     and, with ``heading`` (d,), leaving the start in the robot's heading (module docstring); with
     ``pin_end`` the last point stays where it is (the goal);
     returned unchanged (not resampled) if it already does both.
     ``regions``: the repulsive regions to stay out of; ``loop``: ``solve_active_set``'s;
     ``planes``: (points, times) -> the regions' half-planes (default ``half_planes``; the planner
-    passes ``compiled_half_planes``)."""
+    passes ``compiled_half_planes``); ``clears``: (points, times, eased) -> whether they are clear
+    (default ``regions_clear``; the planner passes ``compiled_clear``)."""
     if not np.isfinite(kappa_max) or len(xy) < 7:
         return xy
     first = xy[min(int(np.ceil(SPACING / max(np.linalg.norm(xy[1] - xy[0]), 1e-9))), len(xy) - 1)] - xy[0]
@@ -326,7 +341,7 @@ def fair_path(xy: np.ndarray, times: np.ndarray, kappa_max: float, regions: Sequ
         kept, tk = x[:K], t[:K]
         if stray(kept, r[:K], 1.0 / kappa_max):
             return best
-        clear = all(np.all((g.values(kept, tk) > g.c)[2:-2] | eased[2:-2]) for g in regions)
+        clear = regions_clear(kept, tk, regions, eased) if clears is None else clears(kept, tk, eased)
         kappa = np.max(menger_curvature(kept))
         if clear and kappa < best_kappa:
             best, best_kappa = kept, kappa

@@ -1,5 +1,5 @@
-"""The fairing's supporting half-planes (``fairing.half_planes``) for planar superellipse
-regions, as one plain loop to compile.
+"""The fairing's supporting half-planes (``fairing.half_planes``) and its clear check
+(``fairing.regions_clear``) for planar superellipse regions, as plain loops to compile.
 
 Per point x_k reached at t_k, among the regions whose reactive region holds it (varphi_i < 0,
 within the reach of the centre then), the one it is deepest in relative to Q_i (varphi_i / c_i
@@ -45,3 +45,21 @@ def half_planes_loop(x, t, rows, clear_level, newton, tol, n, b):
             n[k, 0], n[k, 1] = gx / norm, gy / norm
             b[k] = n[k, 0] * qx + n[k, 1] * qy
             worst = v / c
+
+
+def clear_loop(x, t, rows, first, last, eased):
+    """Whether every point x_k (K, 2) reached at t_k, first <= k < last and not ``eased[k]``, lies
+    outside every repulsive region Q_i (varphi_i > c_i where it is within the reach of the centre
+    then; beyond the reach varphi_i = +inf): ``fairing.regions_clear``, stopped at the first point
+    that is not."""
+    for k in range(first, last):
+        if eased[k]:
+            continue
+        for i in range(rows.shape[0]):
+            cx, cy = row_centre(rows, i, t[k])
+            if (x[k, 0] - cx) ** 2 + (x[k, 1] - cy) ** 2 >= rows[i, 5]:
+                continue
+            v = superellipse_at(x[k, 0], x[k, 1], cx, cy, rows[i, 6], rows[i, 7], rows[i, 8], rows[i, 9], rows[i, 10])[0]
+            if not v > rows[i, 11]:
+                return False
+    return True

@@ -36,7 +36,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from vflpcd.core.guidance.fairing import Region, compiled_half_planes, fair_path
+from vflpcd.core.guidance.fairing import Region, compiled_clear, compiled_half_planes, fair_path
 from vflpcd.core.guidance.field import ActualTerm, GuidanceField, VirtualTerm
 from vflpcd.core.guidance.grid import FieldGrid, Integration, integrate
 from vflpcd.core.guidance.implicit import E, GraphPath, GuidanceError, ObstacleImplicit, graph_horizon
@@ -108,13 +108,14 @@ class GuidancePlan:
 class GuidanceLoops:
     """The guidance's loops compiled (``vflpcd.controllers.loops.guidance_loops``), None each where
     its numpy path runs: the fairing's and tight path's active set (``active_set_kernel``), the
-    steps of eq. (xi_r) (``integrate_kernel``), the fairing's half-planes (``half_plane_kernel``)
-    and the 3-D steps (``integrate3d_kernel``, run interpreted where None)."""
+    steps of eq. (xi_r) (``integrate_kernel``), the fairing's half-planes and clear check
+    (``half_plane_kernel``) and the 3-D steps (``integrate3d_kernel``, run interpreted where None)."""
 
     active_set: Callable | None = None
     steps: Callable | None = None
     half_planes: Callable | None = None
     steps3d: Callable | None = None
+    clear: Callable | None = None
 
 
 class PlannerBase:
@@ -299,12 +300,13 @@ class PlannerBase:
         regions = [Region(partial(_value_grad_at_times, term.implicit), term.implicit.c,
                           partial(_within_reach, term.implicit)) for term in terms]
         loops = self._loops()
-        planes = None
+        planes = clears = None
         if loops.half_planes is not None and self.dim == 2:
             rows = np.array([term.implicit.row() for term in terms], dtype=float).reshape(-1, 12)
             planes = partial(compiled_half_planes, loops.half_planes, rows)
+            clears = partial(compiled_clear, loops.clear, rows) if loops.clear is not None else None
         return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, regions, heading, pin_end,
-                         loops.active_set, planes)
+                         loops.active_set, planes, clears)
 
     def tight_clearance(self, o: ObstacleState) -> float:
         """The clearance the tight path keeps between the body's discs and o's shape: ``tight_margin``

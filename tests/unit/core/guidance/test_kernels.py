@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from vflpcd.config.scenarios import default_guidance
-from vflpcd.controllers.loops import half_planes_loop, integrate_loop
-from vflpcd.core.guidance.fairing import Region, compiled_half_planes, half_planes
+from vflpcd.controllers.loops import clear_loop, half_planes_loop, integrate_loop
+from vflpcd.core.guidance.fairing import Region, compiled_clear, compiled_half_planes, half_planes, regions_clear
 from vflpcd.core.guidance.grid import integrate
 from vflpcd.core.guidance.planner import GuidancePlanner, _value_grad_at_times, _within_reach
 from vflpcd.core.obstacles import ObstacleState
@@ -72,6 +72,28 @@ def test_the_compiled_half_planes_are_the_numpy_ones(scene):
     np.testing.assert_array_equal(np.isfinite(b_c), held)
     np.testing.assert_allclose(n_c, n, rtol=0.0, atol=1e-12)
     np.testing.assert_allclose(b_c[held], b[held], rtol=1e-12, atol=1e-12)       # b = n . q: q tens of metres
+
+
+def test_the_compiled_clear_check_is_the_numpy_one(scene):
+    """Paths of points around the regions, some through one, some eased there: the compiled check
+    says clear exactly where ``regions_clear`` does (both sides seen)."""
+    planner, prepared, field = scene
+    terms = field.statics + field.movers
+    regions = [Region(lambda p, tt, o=term.implicit: _value_grad_at_times(o, p, tt), term.implicit.c,
+                      lambda p, tt, o=term.implicit: _within_reach(o, p, tt)) for term in terms]
+    rows = np.array([term.implicit.row() for term in terms])
+    rng = np.random.default_rng(5)
+    seen = set()
+    for _ in range(300):
+        i = rng.integers(len(terms))
+        t = np.sort(rng.uniform(0.0, 12.0, 40))
+        centre = terms[i].implicit.center_at(float(t[20]))
+        x = centre + rng.normal(0.0, 1.0, 2) + np.linspace(-1.0, 1.0, 40)[:, None] * rng.normal(0.0, 4.0, 2)
+        eased = rng.random(40) < 0.1
+        clear = regions_clear(x, t, regions, eased)
+        assert compiled_clear(clear_loop(), rows, x, t, eased) == clear
+        seen.add(clear)
+    assert seen == {True, False}
 
 
 def test_a_static_obstacle_without_a_direction_is_an_error_not_a_loop(scene):
