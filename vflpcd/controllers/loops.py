@@ -324,7 +324,7 @@ def _warm_clear(loop) -> None:
     """Compile (or load) the loop now, for the argument types ``fairing.compiled_clear`` passes."""
     import numpy as np
 
-    loop(np.zeros((1, 2)), np.zeros(1), np.zeros((0, 12)), 0, 1, np.zeros(1, dtype=bool))
+    loop(np.zeros((1, 2)), np.zeros(1), np.zeros((0, 12)), 0, 1, np.zeros(1, dtype=bool), 1.0)
 
 
 def _warm_half_planes(loop) -> None:

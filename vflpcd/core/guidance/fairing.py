@@ -161,7 +161,7 @@ def compiled_clear(loop, rows: np.ndarray, x: np.ndarray, t: np.ndarray, eased: 
     """``regions_clear`` by ``half_plane_kernel.clear_loop`` compiled (``loop``), for the planar regions
     whose ``ObstacleImplicit.row`` are ``rows`` (R, 12)."""
     return bool(loop(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(t, dtype=float), rows, 2,
-                     len(x) - 2, np.ascontiguousarray(eased)))
+                     len(x) - 2, np.ascontiguousarray(eased), 1.0))
 
 
 def compiled_half_planes(loop, rows: np.ndarray, x: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

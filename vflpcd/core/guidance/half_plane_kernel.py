@@ -47,11 +47,12 @@ def half_planes_loop(x, t, rows, clear_level, newton, tol, n, b):
             worst = v / c
 
 
-def clear_loop(x, t, rows, first, last, eased):
+def clear_loop(x, t, rows, first, last, eased, scale):
     """Whether every point x_k (K, 2) reached at t_k, first <= k < last and not ``eased[k]``, lies
-    outside every repulsive region Q_i (varphi_i > c_i where it is within the reach of the centre
-    then; beyond the reach varphi_i = +inf): ``fairing.regions_clear``, stopped at the first point
-    that is not."""
+    above the level ``scale`` c_i of every region (varphi_i > scale c_i where it is within the reach
+    of the centre then; beyond the reach varphi_i = +inf; scale 1: outside every repulsive region
+    Q_i), stopped at the first point that is not: ``fairing.regions_clear`` and the planner's
+    ``reaches_any``."""
     for k in range(first, last):
         if eased[k]:
             continue
@@ -60,6 +61,6 @@ def clear_loop(x, t, rows, first, last, eased):
             if (x[k, 0] - cx) ** 2 + (x[k, 1] - cy) ** 2 >= rows[i, 5]:
                 continue
             v = superellipse_at(x[k, 0], x[k, 1], cx, cy, rows[i, 6], rows[i, 7], rows[i, 8], rows[i, 9], rows[i, 10])[0]
-            if not v > rows[i, 11]:
+            if not v > scale * rows[i, 11]:
                 return False
     return True

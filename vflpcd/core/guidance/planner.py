@@ -283,7 +283,7 @@ class PlannerBase:
         straight = graph.straighten(raw)
         while True:
             xy = graph.bend(smooth_path(straight, sigma)) if sigma >= 0.5 else raw
-            if sigma < 0.5 or not any(self._reaches(term.implicit, xy, t, term.implicit.c) for term in terms):
+            if sigma < 0.5 or not self.reaches_any(terms, xy, t):
                 return xy
             sigma /= 2.0
 
@@ -354,6 +354,19 @@ class PlannerBase:
         """The least gap (``disc_gaps``) of the body along a timed trajectory to the keepouts, m."""
         return float(np.min(disc_gaps(trajectory.pos, self.body, keepouts, trajectory.t)))
 
+    def reaches_any(self, terms, xy: np.ndarray, t: np.ndarray, scale: float = 1.0) -> bool:
+        """Whether some point of xy (K, d) reached at times t (K,) comes to the level ``scale`` c_i of
+        some term's region (varphi_i <= scale c_i; scale 1: into its repulsive region), by
+        ``half_plane_kernel.clear_loop`` compiled for planar regions, else by ``_reaches``."""
+        loop = self._loops().clear
+        if loop is not None and self.dim == 2:
+            if not terms:
+                return False
+            rows = np.array([term.implicit.row() for term in terms], dtype=float)
+            return not loop(np.ascontiguousarray(xy, dtype=float), np.ascontiguousarray(t, dtype=float), rows,
+                            0, len(xy), np.zeros(len(xy), dtype=bool), float(scale))
+        return any(self._reaches(term.implicit, xy, t, scale * term.implicit.c) for term in terms)
+
     @staticmethod
     def _reaches(o: ObstacleImplicit, xy: np.ndarray, t: np.ndarray, level: float) -> bool:
         """Whether varphi <= level (< 0: inside the reactive region) at some point of xy (K, d)
@@ -401,7 +414,7 @@ class PlannerBase:
     def meets_mover(self, movers, trajectory: Trajectory, slack: float = 0.0) -> bool:
         """Whether the timed trajectory enters a moving obstacle's repulsive region (terms ``movers``)
         deeper than ``slack`` times its level |c_i| (0: at all)."""
-        return any(self._reaches(m.implicit, trajectory.pos, trajectory.t, (1.0 + slack) * m.implicit.c) for m in movers)
+        return self.reaches_any(movers, trajectory.pos, trajectory.t, 1.0 + slack)
 
     def touches_mover(self, movers: Sequence[ObstacleState], trajectory: Trajectory) -> bool:
         """Whether the body's covering discs along the timed trajectory come into a moving obstacle's

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from vflpcd.config.scenarios import default_guidance
-from vflpcd.controllers.loops import clear_loop, half_planes_loop, integrate_loop
+from vflpcd.controllers.loops import clear_loop, guidance_loops, half_planes_loop, integrate_loop
 from vflpcd.core.guidance.fairing import Region, compiled_clear, compiled_half_planes, half_planes, regions_clear
 from vflpcd.core.guidance.grid import integrate
 from vflpcd.core.guidance.planner import GuidancePlanner, _value_grad_at_times, _within_reach
@@ -76,12 +76,16 @@ def test_the_compiled_half_planes_are_the_numpy_ones(scene):
 
 def test_the_compiled_clear_check_is_the_numpy_one(scene):
     """Paths of points around the regions, some through one, some eased there: the compiled check
-    says clear exactly where ``regions_clear`` does (both sides seen)."""
+    says clear exactly where ``regions_clear`` does, and the planner's ``reaches_any`` (compiled)
+    exactly where ``_reaches`` does, at the repulsive level and beyond it (both sides seen)."""
     planner, prepared, field = scene
     terms = field.statics + field.movers
     regions = [Region(lambda p, tt, o=term.implicit: _value_grad_at_times(o, p, tt), term.implicit.c,
                       lambda p, tt, o=term.implicit: _within_reach(o, p, tt)) for term in terms]
     rows = np.array([term.implicit.row() for term in terms])
+    compiled = GuidancePlanner(planner.path, planner.params, planner.v_desired, planner.a_lat_max,
+                               planner.body_radius, planner.dt, loops=guidance_loops)
+    assert planner._loops().clear is None and compiled._loops().clear is not None
     rng = np.random.default_rng(5)
     seen = set()
     for _ in range(300):
@@ -93,7 +97,11 @@ def test_the_compiled_clear_check_is_the_numpy_one(scene):
         clear = regions_clear(x, t, regions, eased)
         assert compiled_clear(clear_loop(), rows, x, t, eased) == clear
         seen.add(clear)
-    assert seen == {True, False}
+        for scale in (1.0, 1.25):               # the planner's checks (meets_mover's slack: 1.25)
+            reaches = planner.reaches_any(terms, x, t, scale)
+            assert compiled.reaches_any(terms, x, t, scale) == reaches
+            seen.add(("reaches", scale, reaches))
+    assert {True, False, ("reaches", 1.25, True), ("reaches", 1.25, False)} <= seen
 
 
 def test_a_static_obstacle_without_a_direction_is_an_error_not_a_loop(scene):
