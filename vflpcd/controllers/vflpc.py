@@ -71,6 +71,17 @@ def curvature_limit(scenario) -> float:
     return float(np.tan(cfg.limits.delta_max) / cfg.params.wheelbase)
 
 
+def curvature_rate_limit(scenario) -> float:
+    """The robot's steering rate limit as a rate of path curvature: delta_rate_max / L for the car
+    (1/(m s), at small steering angles, where it binds most), none (inf) for the quadrotor."""
+    if scenario.platform != "ground":
+        return np.inf
+    from vflpcd.config.vehicles import BicycleConfig
+
+    cfg = BicycleConfig.load(scenario.params)
+    return float(cfg.limits.delta_rate_max / cfg.params.wheelbase)
+
+
 def compensator_for(model, params: VFLPCParams) -> OnlineCompensator:
     """The GP on the channels of ``[compensation]`` (config/controllers/vflpc.toml; B_d selects them,
     paper section "Model Uncertainties Learning"), input z = [channels, rho_e, u] without the pose
@@ -99,7 +110,8 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
     planner_cls = GuidancePlanner if scenario.dim == 2 else GuidancePlanner3D
     planner = planner_cls(scenario.path, scenario.guidance, scenario.v_desired, scenario.a_lat_max,
                           scenario.footprint.radius, model.dt, kappa_limit=curvature_limit(scenario),
-                          body=planner_body(scenario, params.vehicle_params), loops=guidance_loops)
+                          body=planner_body(scenario, params.vehicle_params), loops=guidance_loops,
+                          kappa_rate_limit=curvature_rate_limit(scenario))
     planner.warm()          # the compiled loops loaded now, not in the first tick's plan
     if compensation and not np.isclose(scenario.control_period, model.dt):
         raise ValueError(f"GP compensation learns one-model-step transitions: scenario {scenario.name!r} runs "

@@ -125,8 +125,11 @@ class PlannerBase:
 
     def __init__(self, path: ReferencePath, params: GuidanceParams, v_desired: float, a_lat_max: float,
                  body_radius: float, control_period: float, kappa_limit: float = np.inf,
-                 body: Body | None = None, loops: Callable[[], GuidanceLoops | None] | None = None) -> None:
-        """``loops``: a function that returns the guidance's loops compiled (``GuidanceLoops``;
+                 body: Body | None = None, loops: Callable[[], GuidanceLoops | None] | None = None,
+                 kappa_rate_limit: float = np.inf) -> None:
+        """``kappa_rate_limit``: the steering's rate limit as a rate of curvature, delta_rate_max / L
+        (1/(m s); inf: none), of which the speed plan uses ``curvature_use`` (``speed.plan_speed``).
+        ``loops``: a function that returns the guidance's loops compiled (``GuidanceLoops``;
         ``vflpcd.controllers.loops.guidance_loops``), or None where there are none (their numpy
         paths run). The planner is sent to the worker processes, and a function travels there by
         name and loads the compiled loops from numba's cache (``warm``); a compiled loop sent itself
@@ -146,6 +149,10 @@ class PlannerBase:
         self.body = body if body is not None else Body(np.zeros(1), float(body_radius))
         self.kappa_limit = float(kappa_limit)
         self.kappa_max = params.curvature_use * kappa_limit
+        if not kappa_rate_limit > 0:
+            raise GuidanceError(f"kappa_rate_limit must be positive (inf: none), got {kappa_rate_limit}")
+        self.kappa_rate_limit = float(kappa_rate_limit)
+        self.kappa_rate_max = params.curvature_use * kappa_rate_limit
         self.loops = loops
 
     def warm(self) -> None:
@@ -208,7 +215,8 @@ class PlannerBase:
     def _with(self, params: GuidanceParams) -> "PlannerBase":
         """The same planner with other parameters."""
         return type(self)(self.path, params, self.v_desired, self.a_lat_max, self.body_radius, self.dt,
-                          kappa_limit=self.kappa_limit, body=self.body, loops=self.loops)
+                          kappa_limit=self.kappa_limit, body=self.body, loops=self.loops,
+                          kappa_rate_limit=self.kappa_rate_limit)
 
     def margin(self, o: ObstacleState) -> float:
         """The clearance kept beyond the body radius from obstacle o: ``safety_margin``, plus
@@ -403,7 +411,7 @@ class PlannerBase:
         goal with ``at_rest``, braking at a_decel (default the params'): (s, kappa, v)."""
         p = self.params
         return plan_speed(xy, v_max, self.a_lat_max, p.a_accel, p.a_decel if a_decel is None else a_decel, v0,
-                          v_end=0.0 if at_rest else None, kappa_cap=kappa_cap)
+                          v_end=0.0 if at_rest else None, kappa_cap=kappa_cap, kappa_rate_max=self.kappa_rate_max)
 
     def timed(self, xy: np.ndarray, v_max: float, v0: float, t0: float, at_rest: bool):
         """The path xy speed-planned up to v_max from v0 (ending at rest with ``at_rest``) and timed

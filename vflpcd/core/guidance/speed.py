@@ -1,6 +1,10 @@
 """Speed planning along a planned path (paper section III-A, after eq. S_xi).
 
 The centripetal limit v^2 kappa <= a_max gives v_max(s) = min(v_d, sqrt(a_max / kappa(s)));
+the steering's rate limit caps the speed where the curvature changes: a car at speed v on a path
+whose curvature changes by d kappa / ds per metre turns its steering at about L v |d kappa / ds|
+(small angles), so v <= kappa_rate_max / |d kappa / ds| (``kappa_rate_max`` = delta_rate_max / L,
+d kappa / ds over ``RATE_WINDOW`` of the windowed signed curvature; planar paths only);
 a forward pass (v_{k+1}^2 <= v_k^2 + 2 a_acc ds) and a backward pass
 (v_k^2 <= v_{k+1}^2 + 2 a_dec ds) make the profile reachable under the longitudinal limits,
 and only ever lower speeds, so the centripetal limit still holds. A speed cap below the robot's
@@ -13,6 +17,11 @@ from __future__ import annotations
 import numpy as np
 
 CURVATURE_WINDOW = 1.0   # m: a path's bend is its heading's change over this much arc length (``windowed_curvature``)
+# m: the curvature's rate of change is taken over this much arc length (``curvature_rate``). The
+# steering's rate limit matters for a sustained change (a swerve's S: 0.25 1/m over 4 m), not for
+# the millimetre zig-zags of a solved path; over 1 or 2 m those slowed a car following a slow car
+# in its lane (follow_slow_car J_MC 0.037 -> 0.095).
+RATE_WINDOW = 3.0
 
 
 def menger_curvature(xy: np.ndarray) -> np.ndarray:
@@ -67,9 +76,15 @@ def heading_curvature(xy: np.ndarray, window: float = CURVATURE_WINDOW) -> np.nd
     return windowed_curvature(path_heading(xy), arc_lengths(xy), window)
 
 
+def curvature_rate(xy: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """|d kappa / ds| (K,) of a planar polyline (K, 2) at arc lengths s (K,): the change of its
+    windowed signed curvature (``heading_curvature``) over ``RATE_WINDOW``."""
+    return np.abs(windowed_curvature(heading_curvature(xy), s, RATE_WINDOW))
+
+
 def plan_speed(xy: np.ndarray, v_desired: float, a_lat_max: float, a_accel: float, a_decel: float,
                v_start: float, v_end: float | None = None,
-               kappa_cap: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               kappa_cap: float = np.inf, kappa_rate_max: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Speed profile for the path xy (K, d): returns (s (K,), kappa (K,), v (K,)).
 
     kappa is the largest Menger curvature of each point and its two neighbours (a
@@ -80,9 +95,15 @@ def plan_speed(xy: np.ndarray, v_desired: float, a_lat_max: float, a_accel: floa
     hard to catch it. v_end: the speed required at the last point (None: free; a stop shorter
     than braking at a_decel allows starts the braking at once).
     ``kappa_cap``: the curvature the centripetal limit takes at most (a path that its fairing
-    will bring within it).
+    will bring within it). ``kappa_rate_max`` (1/(m s)): the steering's rate limit as a rate of
+    curvature (module docstring; a planar path's speed is capped by it like v_desired, reached by
+    braking from v_start).
     """
     s = arc_lengths(xy)
+    if np.isfinite(kappa_rate_max) and xy.shape[1] == 2 and len(xy) > 2:
+        rate = curvature_rate(xy, s)
+        with np.errstate(divide="ignore"):
+            v_desired = np.minimum(v_desired, np.where(rate > 0.0, kappa_rate_max / rate, np.inf))
     k = menger_curvature(xy)
     kappa = np.maximum(k, np.maximum(np.roll(k, 1), np.roll(k, -1)))
     kappa[0], kappa[-1] = max(k[0], k[min(1, len(k) - 1)]), max(k[-1], k[max(len(k) - 2, 0)])

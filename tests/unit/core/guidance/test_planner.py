@@ -309,6 +309,31 @@ def test_a_cap_below_the_start_speed_is_reached_by_braking_not_by_a_step(params,
         assert v[-1] == 0.0
 
 
+def test_the_speed_plan_keeps_the_steering_rate_in_a_quick_swerve_and_leaves_steady_bends_alone(params):
+    """A 3.5 m lane change over 8 m, planned at up to 9 m/s within the lateral-acceleration limit,
+    asks the SUV's steering (0.6 rad/s, wheelbase 3.14 m) for twice its rate: with kappa_rate_max
+    the speed there keeps v |d kappa / ds| within it; a
+    straight road and a circle of constant curvature keep their speeds (the centripetal limit
+    alone)."""
+    from vflpcd.core.guidance.speed import curvature_rate
+
+    rate_max = 0.6 / 3.14
+    x = np.linspace(0.0, 80.0, 321)
+    ramp = np.clip((x - 30.0) / 8.0, 0.0, 1.0)
+    swerve = np.column_stack([x, 3.5 * ramp ** 3 * (10.0 - 15.0 * ramp + 6.0 * ramp ** 2)])
+    s, _, free = plan_speed(swerve, 9.0, 3.0, params.a_accel, params.a_decel, 9.0)
+    s, _, v = plan_speed(swerve, 9.0, 3.0, params.a_accel, params.a_decel, 9.0, kappa_rate_max=rate_max)
+    need = curvature_rate(swerve, s)
+    assert np.max(free * need) > 2.0 * rate_max                          # unaware, beyond the steering
+    assert np.all(v * need <= rate_max * (1.0 + 1e-9)) and v.min() < 0.7 * free.min()
+    assert np.all(v <= free + 1e-12)
+    for path in (np.column_stack([x, np.zeros_like(x)]),
+                 20.0 * np.column_stack([np.cos(x / 20.0), np.sin(x / 20.0)])):
+        _, _, plain = plan_speed(path, 9.0, 3.0, params.a_accel, params.a_decel, 4.0)
+        _, _, capped = plan_speed(path, 9.0, 3.0, params.a_accel, params.a_decel, 4.0, kappa_rate_max=rate_max)
+        np.testing.assert_allclose(capped, plain, rtol=0.0, atol=1e-9)
+
+
 @pytest.mark.parametrize("start_y", [-40.0, -37.0])     # at 6 m/s both reach the crossing at about 6.7 s
 def test_a_car_crossing_the_route_is_yielded_to_not_swerved_round(params, start_y):
     """A car crossing the route at 6 m/s ahead: the plan keeps to the route (no swerve), slows before
