@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol, Sequence
 
 import numpy as np
@@ -52,6 +52,7 @@ from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout
 from vflpcd.core.guidance.implicit import GuidanceError
 from vflpcd.core.guidance.speed import heading_curvature
 from vflpcd.core.guidance.tighten import CLEAR_TOLERANCE
+from vflpcd.core.guidance.trajectory import timed_trajectory
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.norms import vector_norm
 from vflpcd.core.path import nearest_on_polyline, unit_differences
@@ -72,6 +73,10 @@ LIGHT_SATURATION = 0.5
 # limits), and without a new obstacle or the plan's end nothing asked again, so the car drove on
 # to that stretch and the failsafe stopped it there (a jittered follow_slow_car).
 UNDRIVABLE_RETRY = 0.5
+# A replan from inside an obstacle's region is planned from a point on the robot's way ahead
+# (``_led_out``): tried every LEAD_STEP m up to LEAD_MAX m, the way sampled every LEAD_SPACING m;
+# not below LEAD_SPEED_MIN m/s (a robot at rest there waits for the supervisor and the monitors).
+LEAD_STEP, LEAD_MAX, LEAD_SPACING, LEAD_SPEED_MIN = 1.0, 12.0, 0.25, 0.5
 
 
 @dataclass(frozen=True)
@@ -113,7 +118,13 @@ def plan_job(planner, job: ReplanJob) -> PlanResult:
         if narrow is None:              # planned with the recovery's narrow margins
             raise
         log.info("event=recovery_plan t=%.2f margin=%.2f reason=%s", job.t, narrow.params.safety_margin, exc)
-        result = _plan_once(narrow, job)
+        try:
+            result = _plan_once(narrow, job)
+        except GuidanceError:          # the start is inside a region at the narrow margins too
+            led = _led_out(narrow, job, statics)
+            if led is None:
+                raise
+            return led
         if _usable(narrow, result, statics):
             return result
         return _first_usable(narrow.closers(), job, statics) or _clear(narrow, result, statics)
@@ -122,6 +133,41 @@ def plan_job(planner, job: ReplanJob) -> PlanResult:
     narrow = planner.recovery()
     fallbacks = () if narrow is None else (narrow,) + narrow.closers()
     return _first_usable(fallbacks, job, statics) or _clear(planner, result, statics)
+
+
+def _led_out(planner, job: ReplanJob, statics: Sequence[ObstacleState]) -> PlanResult | None:
+    """For a robot inside an obstacle's region at every margin (beside a truck it passes close, on a
+    tight path): its straight way ahead along its heading, at its speed, to the first point (every
+    ``LEAD_STEP`` m, at most ``LEAD_MAX`` m on) from which ``planner`` plans, and that plan after it;
+    the first such plan that is usable and keeps the body out of the movers' shapes, None when none
+    is (or the robot has no heading: 2-D only). The replans beside a parked truck failed until the
+    robot had passed it, and the failsafe braked it to rest there (a jittered double_lane_change)."""
+    if job.heading is None:
+        return None
+    speed = float(np.linalg.norm(job.vel))
+    h = np.array([math.cos(job.heading), math.sin(job.heading)])
+    movers = [o for o in job.obstacles if o.moving]
+    for d in np.arange(LEAD_STEP, LEAD_MAX + 1e-9, LEAD_STEP):
+        lead_s = np.linspace(0.0, d, max(int(math.ceil(d / LEAD_SPACING)), 1) + 1)[:-1]
+        ahead = ReplanJob(job.s + d, job.pos + d * h, job.vel, job.heading, job.t + d / max(speed, LEAD_SPEED_MIN),
+                          job.obstacles)
+        try:
+            result = _plan_once(planner, ahead)
+        except GuidanceError:
+            continue
+        plan = result.plan
+        if speed < LEAD_SPEED_MIN or abs(plan.v[0] - speed) > 1e-6:
+            return None         # the way ahead is driven at the robot's speed: a plan that joins it
+        xy = np.vstack([job.pos + lead_s[:, None] * h, plan.xy])
+        s = np.concatenate([lead_s, d + plan.s])
+        v = np.concatenate([np.full(len(lead_s), speed), plan.v])
+        kappa = np.concatenate([np.zeros(len(lead_s)), plan.kappa])
+        led = replace(plan, xy=xy, s=s, v=v, kappa=kappa, raw=np.vstack([xy[:len(lead_s)], plan.raw]),
+                      trajectory=timed_trajectory(xy, s, v, job.t, planner.dt))
+        if _usable(planner, PlanResult(led, result.ends_path), statics) and not planner.touches_mover(movers, led.trajectory):
+            log.info("event=recovery_plan t=%.2f led_out_m=%.1f", job.t, d)
+            return PlanResult(led, result.ends_path)
+    return None
 
 
 def _usable(planner, result: PlanResult, statics: Sequence[ObstacleState]) -> bool:

@@ -435,3 +435,28 @@ def test_command_increments_name_inputs_of_the_platform():
             vflpc_params(_table({"cost": {"command_increments_ground": bad}}), "ground")
     with pytest.raises(ConfigError, match="command_increments_aerial"):
         vflpc_params(_table({"cost": {"command_increments_aerial": ["a_x"]}}), "aerial")
+
+
+def test_a_replan_from_inside_a_trucks_region_at_every_margin_leads_out_along_the_way_ahead():
+    """Beside a parked truck it passes close (a jittered double_lane_change), the robot is inside
+    the truck's region at the narrow margins too: no plan starts there. plan_job plans from the
+    first point of the robot's straight way ahead that is outside, and the plan keeps the steering
+    limit and the truck's shape clear from the robot on; a robot at rest there gets none."""
+    from sim.bench.suite import load
+    from vflpcd.core.shapes import Box
+
+    road = load("double_lane_change")
+    truck = ObstacleState("parked_truck", Box(10.0, 2.5), np.array([54.039, 0.409]), 0.0, np.zeros(2), 0.0)
+    planner = make_vflpc(dataclasses.replace(road, obstacles=(), v_desired=5.145)).planner
+    job = ReplanJob(49.24, np.array([49.24, -2.34]), np.array([5.1, 0.0]), 0.0, 9.6, (truck,))
+    with pytest.raises(GuidanceError, match="covers the start"):
+        _plan_once(planner.recovery(), job)
+    plan = plan_job(planner, job).plan
+    np.testing.assert_allclose(plan.xy[0], job.pos)
+    assert plan.v[0] == pytest.approx(5.1) and planner.drivable(plan)
+    assert planner.static_gap(plan, [truck]) >= -CLEAR_TOLERANCE
+    lead = plan.xy[:4]
+    assert np.allclose(lead[:, 1], -2.34) and np.all(np.diff(lead[:, 0]) > 0.0)     # straight on along the heading
+    at_rest = dataclasses.replace(job, vel=np.zeros(2))
+    with pytest.raises(GuidanceError, match="covers the start"):
+        plan_job(planner, at_rest)
