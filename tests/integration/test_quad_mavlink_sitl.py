@@ -18,18 +18,22 @@ from processes import Proc  # noqa: E402
 LOITER, LAND = (3 << 24) | (4 << 16), (6 << 24) | (4 << 16)
 
 
-def quad_mission(folder: Path, port: int, *, hold: float = 3.0, state_max_age: float = 0.5) -> Path:
-    """The uav_3d mission over MAVLink on ``port``; ``state_max_age`` 0.5 s and an overrun streak
-    of 25 ticks (0.5 s) before the failsafe: the test machine's other tests share its two cores,
-    and with the default 5 (0.1 s) the control thread, kept from the CPU for five periods in a
-    row, failed the mission in some full-suite runs, as did a SITL state 265 ms old at 0.25 s (the
-    overrun and stale-state failsafes have their own tests, ``test_daemon_failsafes.py``; the
-    other integration missions allow 0.5 s too, ``conftest.mission_file``)."""
+def quad_mission(folder: Path, port: int, *, hold: float = 3.0, state_max_age: float = 0.5,
+                 telemetry_timeout: float = 1.0) -> Path:
+    """The uav_3d mission over MAVLink on ``port``; ``state_max_age`` 0.5 s, ``telemetry_timeout``
+    1 s and an overrun streak of 25 ticks (0.5 s) before the failsafe: the test machine's other
+    tests share its two cores, and with the default 5 (0.1 s) the control thread, kept from the CPU
+    for five periods in a row, failed the mission in some full-suite runs, as did a SITL state 265
+    ms old at 0.25 s and a SITL that sent no position for 0.3 s (the overrun and stale-state
+    failsafes have their own tests, ``test_daemon_failsafes.py``; the other integration missions
+    allow a 0.5 s old state too, ``conftest.mission_file``, and the shutdown test 1 s without a
+    position; the link-loss test below keeps 0.25 and 0.3 s, as all three had before)."""
     path = folder / "quad_sitl.toml"
     path.write_text(f"""vehicle_id = "quad1"
 [platform]
 kind = "mavlink"
 url = "udpin://127.0.0.1:{port}"
+telemetry_timeout = {telemetry_timeout}
 hold_s = 1.0
 [route]
 scenario = "uav_3d"
@@ -91,7 +95,7 @@ def test_quadrotor_mission_through_mavsdk_takes_off_flies_the_course_and_lands(t
 
 def test_autopilot_killed_trips_the_failsafe_and_a_restarted_one_is_reconnected(tmp_path):
     port = free_udp_port()
-    mission = quad_mission(tmp_path, port, hold=6.0)
+    mission = quad_mission(tmp_path, port, hold=6.0, state_max_age=0.25, telemetry_timeout=0.3)
     autopilot = sitl(port)
     daemon = Proc("run", str(mission))
     autopilot2 = None
