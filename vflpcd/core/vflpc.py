@@ -111,28 +111,24 @@ def plan_job(planner, job: ReplanJob) -> PlanResult:
     margin), or a plan that leaves the field's grid (``within_grid``), is planned for by the
     recovery at once (and by its closers when that plan is not usable)."""
     statics = [o for o in job.obstacles if not o.moving]
+    narrow = planner.recovery()
     try:
-        result = _plan_once(planner, job)
+        first, result = planner, _plan_once(planner, job)
     except GuidanceError as exc:    # the robot is inside a repulsive region (a tight path passes closer
-        narrow = planner.recovery()     # than the field's margin), or the plan left the field's grid:
-        if narrow is None:              # planned with the recovery's narrow margins
-            raise
+        if narrow is None:              # than the field's margin), or the plan left the field's grid:
+            raise                       # planned with the recovery's narrow margins
         log.info("event=recovery_plan t=%.2f margin=%.2f reason=%s", job.t, narrow.params.safety_margin, exc)
         try:
-            result = _plan_once(narrow, job)
+            first, result = narrow, _plan_once(narrow, job)
         except GuidanceError:          # the start is inside a region at the narrow margins too
             led = _led_out(narrow, job, statics)
             if led is None:
                 raise
             return led
-        if _usable(narrow, result, statics):
-            return result
-        return _first_usable(narrow.closers(), job, statics) or _clear(narrow, result, statics)
-    if _usable(planner, result, statics):
+    if _usable(first, result, statics):
         return result
-    narrow = planner.recovery()
-    fallbacks = () if narrow is None else (narrow,) + narrow.closers()
-    return _first_usable(fallbacks, job, statics) or _clear(planner, result, statics)
+    fallbacks = () if narrow is None else ((narrow,) if narrow is not first else ()) + narrow.closers()
+    return _first_usable(fallbacks, job, statics) or _clear(first, result, statics)
 
 
 def _led_out(planner, job: ReplanJob, statics: Sequence[ObstacleState]) -> PlanResult | None:
@@ -140,24 +136,22 @@ def _led_out(planner, job: ReplanJob, statics: Sequence[ObstacleState]) -> PlanR
     tight path): its straight way ahead along its heading, at its speed, to the first point (every
     ``LEAD_STEP`` m, at most ``LEAD_MAX`` m on) from which ``planner`` plans, and that plan after it;
     the first such plan that is usable and keeps the body out of the movers' shapes, None when none
-    is (or the robot has no heading: 2-D only). The replans beside a parked truck failed until the
+    is, or when the robot has no heading (2-D only) or is slower than ``LEAD_SPEED_MIN``. The replans beside a parked truck failed until the
     robot had passed it, and the failsafe braked it to rest there (a jittered double_lane_change)."""
-    if job.heading is None:
-        return None
     speed = float(np.linalg.norm(job.vel))
+    if job.heading is None or speed < LEAD_SPEED_MIN:
+        return None
     h = np.array([math.cos(job.heading), math.sin(job.heading)])
     movers = [o for o in job.obstacles if o.moving]
     for d in np.arange(LEAD_STEP, LEAD_MAX + 1e-9, LEAD_STEP):
-        lead_s = np.linspace(0.0, d, max(int(math.ceil(d / LEAD_SPACING)), 1) + 1)[:-1]
-        ahead = ReplanJob(job.s + d, job.pos + d * h, job.vel, job.heading, job.t + d / max(speed, LEAD_SPEED_MIN),
-                          job.obstacles)
         try:
-            result = _plan_once(planner, ahead)
+            result = _plan_once(planner, replace(job, s=job.s + d, pos=job.pos + d * h, t=job.t + d / speed))
         except GuidanceError:
             continue
         plan = result.plan
-        if speed < LEAD_SPEED_MIN or abs(plan.v[0] - speed) > 1e-6:
+        if abs(plan.v[0] - speed) > 1e-6:
             return None         # the way ahead is driven at the robot's speed: a plan that joins it
+        lead_s = np.linspace(0.0, d, max(int(math.ceil(d / LEAD_SPACING)), 1) + 1)[:-1]
         xy = np.vstack([job.pos + lead_s[:, None] * h, plan.xy])
         s = np.concatenate([lead_s, d + plan.s])
         v = np.concatenate([np.full(len(lead_s), speed), plan.v])

@@ -310,7 +310,7 @@ class PlannerBase:
         loops = self._loops()
         planes = clears = None
         if loops.half_planes is not None and self.dim == 2:
-            rows = np.array([term.implicit.row() for term in terms], dtype=float).reshape(-1, 12)
+            rows = _rows(terms)
             planes = partial(compiled_half_planes, loops.half_planes, rows)
             clears = partial(compiled_clear, loops.clear, rows) if loops.clear is not None else None
         return fair_path(xy, self._point_times(len(xy), t0, times), self.kappa_max, regions, heading, pin_end,
@@ -368,11 +368,8 @@ class PlannerBase:
         ``half_plane_kernel.clear_loop`` compiled for planar regions, else by ``_reaches``."""
         loop = self._loops().clear
         if loop is not None and self.dim == 2:
-            if not terms:
-                return False
-            rows = np.array([term.implicit.row() for term in terms], dtype=float)
-            return not loop(np.ascontiguousarray(xy, dtype=float), np.ascontiguousarray(t, dtype=float), rows,
-                            0, len(xy), np.zeros(len(xy), dtype=bool), float(scale))
+            return bool(terms) and not loop(np.ascontiguousarray(xy, dtype=float), np.ascontiguousarray(t, dtype=float),
+                                            _rows(terms), 0, len(xy), np.zeros(len(xy), dtype=bool), float(scale))
         return any(self._reaches(term.implicit, xy, t, scale * term.implicit.c) for term in terms)
 
     @staticmethod
@@ -498,6 +495,11 @@ def _arrivals(s: np.ndarray, v: np.ndarray, t0: float) -> np.ndarray:
     t = t0 + arrival_times(s, v)
     t[~np.isfinite(t)] = np.max(t[np.isfinite(t)])
     return t
+
+
+def _rows(terms) -> np.ndarray:
+    """The planar regions of ``terms`` as the compiled loops' rows (R, 12) (``ObstacleImplicit.row``)."""
+    return np.array([term.implicit.row() for term in terms], dtype=float).reshape(-1, 12)
 
 
 def _stops(v: np.ndarray) -> bool:
