@@ -187,3 +187,8 @@ def test_bench_loop_prints_the_histograms_and_writes_json(mission_file, port, tm
     assert machine["duration_s"] == 5.0 and 400 <= machine["ticks"] <= 500 and "the machine alone" in run.stdout
     assert machine["lateness_p50_ms"] < 5.0                          # it ticked on its deadlines (period 10 ms)
     assert (run.returncode == 0) == (figures["compute_over_period"] == 0 and figures["lateness_p99_ms"] <= 2.0)
+    steal = figures["steal"]                                         # the host's share beside it, where Linux tells
+    if steal is not None:
+        assert 0.0 <= steal["share"] <= 1.0 and "the host's steal beside the daemon" in run.stdout
+        assert 0 <= steal["overruns_while_stolen"] <= figures["overruns"]
+        assert 0 <= steal["late_over_2ms_while_stolen"] <= figures["late_over_2ms"]
