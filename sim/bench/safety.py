@@ -2,8 +2,9 @@
 
 The scenes are in ``config/scenarios/safety/``: where no collision-free drivable path exists (a
 dead end, a corridor narrower than the car's turning needs), where one exists only tightly (a
-2.5 m gap, a corridor with posts), and one where physics forbids a stop (a pedestrian who steps
-out inside the stopping distance: ``UNAVOIDABLE``). Each controller runs each scene twice in the
+2.5 m gap, a corridor with posts), one where physics forbids a stop (a pedestrian who steps
+out inside the stopping distance: ``UNAVOIDABLE``), and one where stopping is the wrong way out (a
+pass whose route cuts back in ahead of the slower car while the rear is still beside it). Each controller runs each scene twice in the
 same process: behind the supervisor (as everywhere) and without it, for comparison.
 
 Per run it prints: outcome (and the guard's failsafe reason), collisions, least clearance of the
@@ -31,7 +32,7 @@ from vflpcd.core.safety.guard import REST_SPEED
 from vflpcd.base.paths import config_dir
 from sim.plot import save_png
 
-SCENES = ("wall_across", "narrow_turn", "pedestrian_close", "tight_gap", "dense_corridor")
+SCENES = ("wall_across", "narrow_turn", "pedestrian_close", "tight_gap", "dense_corridor", "cut_in")
 UNAVOIDABLE = ("pedestrian_close",)
 CONTROLLERS = ("vflpc", "nmpc_cbf", "koopman_mpc", "pure_pursuit")
 STOPPED = ("stopped", "failsafe", "timeout")   # the body ends at rest without reaching the goal

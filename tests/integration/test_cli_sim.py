@@ -156,7 +156,7 @@ def test_bench_safety_runs_a_scene_with_and_without_the_supervisor_and_writes_js
 def test_bench_safety_refuses_an_unknown_scene_in_one_line(tmp_path):
     assert refused(["bench", "safety", "--scene", "nope", "--out", str(tmp_path)]) == [
         "vflpcd: error: command line: --scene: no such scene 'nope' (have: wall_across, narrow_turn, "
-        "pedestrian_close, tight_gap, dense_corridor)"]
+        "pedestrian_close, tight_gap, dense_corridor, cut_in)"]
 
 
 def test_bench_ml_runs_both_models_on_the_exact_vehicle_and_writes_json_and_png(tmp_path):

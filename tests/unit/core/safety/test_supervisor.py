@@ -283,3 +283,35 @@ def test_a_car_braking_into_a_crossing_cars_way_is_made_to_go_on_out_of_it(y0):
     assert impact is None and least > 0.1
     assert interventions >= 1 and plant.position()[0] > 6.95 + 2.0    # past its lane, not stopped in it
 
+
+
+def _passing(rear_overlap: float, steer: float, supervised: bool = True, seconds: float = 3.0):
+    """A car at 8 m/s in the next lane (y = 3.5) passing a car at 6 m/s, its rear bumper
+    ``rear_overlap`` m behind that car's front bumper, commanded to steer ``steer`` (right: < 0) at
+    a_x 0: ``drive``'s least clearance, impact speed and interventions, and the car's final y."""
+    plant, sup, body = car(8.0, y=3.5)
+    rear = -float(body.outline[:, 0].min())                     # the reference point's distance to the rear bumper
+    slow = obstacle("slow_car", Box(4.5, 1.9), [-rear + rear_overlap - 2.25, 0.0], velocity=(6.0, 0.0))
+    if not supervised:
+        sup.cfg = SupervisorConfig(margin=-1e9, release_margin=-1e9)
+    least, impact, n = drive(plant, sup, body, [slow], [0.0, steer], seconds, moving=True)
+    return least, impact, n, float(plant.position()[1])
+
+
+def test_a_car_cutting_in_ahead_of_the_car_it_passes_is_kept_out_of_it():
+    """Its rear still 2 m beside the slower car's front, the controller steers back into the lane.
+    The slower car is behind the body's middle, where a mover closing in on a braking car does so by
+    its own motion; unsupervised the turn alone swings the car's rear into it. The supervisor counts a
+    mover beside the body (off its track) and, since braking there leaves the car in the slower car's
+    way, goes on with the steering straightened until the turn keeps clear."""
+    _, bare, _, _ = _passing(2.0, -0.25, supervised=False)
+    assert bare is not None                                      # the turn alone meets it
+    least, impact, n, _ = _passing(2.0, -0.25)
+    assert impact is None and least > 0.0 and n >= 1
+
+
+def test_a_car_that_passes_and_steers_back_in_well_ahead_is_left_alone():
+    """The same pass, the rear bumper 6 m ahead of the slower car's front: the turn back into the
+    lane keeps clear, and neither the stop nor going on sees a reason to step in."""
+    least, impact, n, y = _passing(-6.0, -0.12, seconds=1.5)
+    assert impact is None and n == 0 and y < 2.5                # back towards its lane, untouched
