@@ -10,7 +10,8 @@ runs each scene once, behind the safety supervisor, through ``sim.bench.impc.run
 It prints one row per scene and controller (outcome, collisions, least clearance, J_MC, RMS and
 peak lateral error, peak lateral acceleration against the scene's ``a_lat_max`` (the limit the
 guidance plans within; the NMPCs, which track the route without it, may exceed it), longitudinal
-jerk p99 / max, t_cal median, background jobs median / p99 / max), then per controller: the scenes completed without a collision, the collisions, the scenes
+jerk p99 / max, t_cal median, background jobs median / p99 / max, the safety supervisor's
+interventions), then per controller: the scenes completed without a collision, the collisions, the scenes
 where its J_MC is the lowest among the controllers that completed that scene without a collision,
 its background jobs over every scene taken together (a scene runs a handful of replans, so a row's
 p99 is close to its maximum), and for VF-LPC the scenes where its
@@ -91,14 +92,15 @@ def totals(rows: list[dict], controllers: tuple[str, ...]) -> dict:
 
 
 HEAD = (f"{'scenario':<24} {'controller':<20} {'outcome':<10} {'coll':>4} {'clear m':>7} {'J_MC':>7} "
-        f"{'RMS lat':>7} {'peak lat':>8} {'a_lat/limit':>11} {'jerk p99':>8} {'jerk max':>8} {'t_cal ms':>8} {'bg med/p99/max ms':>18}")
+        f"{'RMS lat':>7} {'peak lat':>8} {'a_lat/limit':>11} {'jerk p99':>8} {'jerk max':>8} {'t_cal ms':>8} {'bg med/p99/max ms':>18} "
+        f"{'interv':>6}")
 
 
 def row_line(r: dict) -> str:
     return (f"{r['scenario']:<24} {LABELS[r['controller']]:<20} {r['outcome']:<10} {r['collisions']:>4} "
             f"{_fmt(r['min_clearance']):>7} {_fmt(r['J_MC']):>7} {_fmt(r['rms_lateral_error']):>7} "
             f"{_fmt(r['peak_lateral_error']):>8} {_a_lat(r):>11} {_fmt(r['jerk_p99']):>8} {_fmt(r['jerk_max']):>8} "
-            f"{_fmt(r['t_cal_median'], 1e3):>8} {_background(r):>18}")
+            f"{_fmt(r['t_cal_median'], 1e3):>8} {_background(r):>18} {r['interventions']:>6}")
 
 
 def _a_lat(r: dict) -> str:
