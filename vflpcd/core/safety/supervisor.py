@@ -4,8 +4,8 @@ Rule (a last-chance braking filter). A command u passes when, after applying it 
 time (one control period plus the actuator latency), the platform's emergency manoeuvre from the
 state reached stops the body without coming closer than ``margin`` to any obstacle it knows of:
 static ones, and moving ones along their constant-velocity prediction, each at the time the body
-gets there (while they are ahead of the body's middle, cross its heading or are beside the body:
-one that closes in from behind in the body's own track does so by its own motion), and where it stops, it stays out of the way of the movers that cross its heading for
+gets there (while they are ahead of the body's middle, or cross its heading: one that closes in
+from behind along the heading does so by its own motion), and where it stops, it stays out of the way of the movers that cross its heading for
 ``mover_wait_s`` (a stop in a crossing car's path is no safe stop). Otherwise u is replaced by the emergency manoeuvre at once. So the body never enters a
 known obstacle while a stop is still possible, and when none is possible any more it still brakes
 (or, where the stop would leave it in a mover's way, drives on out of it).
@@ -23,8 +23,8 @@ covering discs (``Footprint``). Emergency: a_x = a_min, with the steering held o
 whichever keeps further off; when no stop keeps the margin because it leaves the car in a mover's
 way (at the first contact of the stop the mover closes on the body faster than the body on it, or
 the stop meets nothing and only the standing does: a crossing car at a junction), a car still at
-``GOING_ON_SPEED`` or more goes on at a_max with the controller's steering, or else with the
-steering straightened, when the rule passes that; when braking can no longer stop the car short of contact, a_x = a_min
+``GOING_ON_SPEED`` or more goes on at a_max with the controller's steering when the rule passes
+that; when braking can no longer stop the car short of contact, a_x = a_min
 with the steering (held, the controller's, or full lock either way) whose prediction, the steering
 moving on at its rate limit through the stop, meets the obstacle at the lowest speed (or not at all).
 
@@ -121,9 +121,6 @@ class Supervisor:
         self.offsets, self.radius = np.asarray(footprint.offsets, float), float(footprint.radius)
         self.reach = float(np.max(np.abs(self.offsets)) + self.radius)
         self._middle = float(np.mean(self.offsets))            # body middle ahead of the reference point (m)
-        outline = np.asarray(footprint.outline, float)
-        self._half_width = (float(outline[:, 1].max() - outline[:, 1].min()) / 2.0 if footprint.dim == 2 and len(outline)
-                            else self.radius)                  # half the body's width across its axis (m)
         self.reset()
 
     def reset(self) -> None:
@@ -294,18 +291,13 @@ class Supervisor:
             keep = np.sqrt((rel * rel).sum(axis=-1)) < (movers.bound + self.reach + self.cfg.release_margin)[:, None]
             if not behind:
                 # a mover counts while it is ahead of the body's middle, or while it crosses the body's
-                # heading (more across it than along it), or when it is beside the body at the first
-                # pose (``_beside``): one that closes in from behind in the body's own track does so
-                # by its own motion, and braking cannot avoid it; a crossing car that meets the side of
-                # a body braking in its way is met by the braking; one beside it is met only by the
-                # body's own turn (a car cutting in ahead of the car it passes). Beside is judged
-                # where the manoeuvre starts: at a later pose a car the turn has brought into contact
-                # overlaps the body's track as a car running into its rear does
+                # heading (more across it than along it): one that closes in from behind along the
+                # heading does so by its own motion, and braking cannot avoid it; a crossing car that
+                # meets the side of a body braking in its way is met by the braking
                 heading = self._heading(pos, yaw)[None]                         # (1, K, d) direction of travel
                 along = (movers.velocity[:, None, :] * heading).sum(axis=-1)   # (n_m, K)
                 across2 = (movers.velocity * movers.velocity).sum(axis=1)[:, None] - along * along
-                keep &= ((((rel + self._middle * heading) * heading).sum(axis=-1) < 0.0) | (across2 > along * along)
-                         | self._beside(rel[:, :1], heading[:, :1], movers))
+                keep &= (((rel + self._middle * heading) * heading).sum(axis=-1) < 0.0) | (across2 > along * along)
             if keep.any():
                 pts = discs[None] - shift[:, :, None, :]                        # the movers frozen at their stamps
                 gap = movers.signed_distance(pts.reshape(len(movers), K * n, d)).reshape(len(movers), K, n)
@@ -314,21 +306,6 @@ class Supervisor:
                 if gap[i] < np.inf:
                     mover = (float(gap[i]) - self.radius, movers.states[i].id)
         return static, mover
-
-    def _beside(self, rel: np.ndarray, heading: np.ndarray, movers: ObstacleArrays) -> np.ndarray:
-        """Whether each mover (n_m) at each pose (K) lies beside the body rather than in its track:
-        the lateral offset between its centre and the body's axis (rel (n_m, K, d): the reference
-        point less the mover's centre; heading (1, K, d)) exceeds half the body's width plus the
-        half-extent of the mover's bounding box across the heading, so that neither, going
-        straight side by side, would meet the other. Planar bodies only (False in 3-D)."""
-        if self.DIM != 2:
-            return np.zeros(rel.shape[:2], dtype=bool)
-        hc, hs = heading[..., 0], heading[..., 1]                               # (1, K)
-        c, s = movers.shape[:, 1][:, None], movers.shape[:, 2][:, None]
-        hx, hy = movers.shape[:, 4][:, None], movers.shape[:, 5][:, None]
-        extent = hx * np.abs(s * hc - c * hs) + hy * np.abs(c * hc + s * hs)     # (n_m, K) across the heading
-        lateral = np.abs(rel[..., 1] * hc - rel[..., 0] * hs)
-        return lateral > self._half_width + extent
 
     def braking_meets_mover(self, state: np.ndarray, command: np.ndarray, obstacles: Sequence[ObstacleState],
                             t: float) -> str:
@@ -588,15 +565,12 @@ class GroundSupervisor(Supervisor):
     def _going_on(self, state: np.ndarray, u: np.ndarray | None, obstacles: Sequence[ObstacleState],
                   t: float) -> np.ndarray | None:
         """A command that goes on where no stop keeps the margin (a car braked into a crossing car's
-        way, or in front of the car it is passing): at the strongest acceleration, the controller's
-        steering (held where there is no command u), else the steering straightened (a car cutting
-        in ahead of a car beside it, whose own turn would bring it into that car), the first that
-        the rule itself passes (``margin``); None when neither does."""
+        way): the controller's steering (held where there is no command u) at the strongest
+        acceleration, when the rule itself passes it (``margin``); None otherwise."""
         steer = float(u[1]) if u is not None else self._delta_now(np.asarray(state, float)[self._idx])
-        for candidate_steer in dict.fromkeys((steer, 0.0)):
-            candidate = np.array([self.limits.a_max, candidate_steer])
-            if self.predicted_clearance(state, candidate, obstacles, t)[0] >= self.cfg.margin:
-                return candidate
+        candidate = np.array([self.limits.a_max, steer])
+        if self.predicted_clearance(state, candidate, obstacles, t)[0] >= self.cfg.margin:
+            return candidate
         return None
 
     def _stop_gaps(self, state: np.ndarray, u: np.ndarray, arrays: ObstacleArrays, t: float):

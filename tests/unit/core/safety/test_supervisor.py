@@ -298,18 +298,6 @@ def _passing(rear_overlap: float, steer: float, supervised: bool = True, seconds
     return least, impact, n, float(plant.position()[1])
 
 
-def test_a_car_cutting_in_ahead_of_the_car_it_passes_is_kept_out_of_it():
-    """Its rear still 2 m beside the slower car's front, the controller steers back into the lane.
-    The slower car is behind the body's middle, where a mover closing in on a braking car does so by
-    its own motion; unsupervised the turn alone swings the car's rear into it. The supervisor counts a
-    mover beside the body (off its track) and, since braking there leaves the car in the slower car's
-    way, goes on with the steering straightened until the turn keeps clear."""
-    _, bare, _, _ = _passing(2.0, -0.25, supervised=False)
-    assert bare is not None                                      # the turn alone meets it
-    least, impact, n, _ = _passing(2.0, -0.25)
-    assert impact is None and least > 0.0 and n >= 1
-
-
 def test_a_car_that_passes_and_steers_back_in_well_ahead_is_left_alone():
     """The same pass, the rear bumper 6 m ahead of the slower car's front: the turn back into the
     lane keeps clear, and neither the stop nor going on sees a reason to step in."""
