@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from vflpcd.app.steal import read_steal
 from vflpcd.log.reader import read_flight_log
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -188,7 +189,8 @@ def test_bench_loop_prints_the_histograms_and_writes_json(mission_file, port, tm
     assert machine["lateness_p50_ms"] < 5.0                          # it ticked on its deadlines (period 10 ms)
     assert (run.returncode == 0) == (figures["compute_over_period"] == 0 and figures["lateness_p99_ms"] <= 2.0)
     steal = figures["steal"]                                         # the host's share beside it, where Linux tells
+    assert (steal is None) == (read_steal() is None) and "the host's steal beside the daemon" in run.stdout
     if steal is not None:
-        assert 0.0 <= steal["share"] <= 1.0 and "the host's steal beside the daemon" in run.stdout
+        assert 0.0 <= steal["share"] <= 1.0 and 0.0 <= steal["ticks_while_stolen"] <= 1.0
         assert 0 <= steal["overruns_while_stolen"] <= figures["overruns"]
         assert 0 <= steal["late_over_2ms_while_stolen"] <= figures["late_over_2ms"]

@@ -90,8 +90,8 @@ def empty_loop(rate_hz: float, duration_s: float, sched_fifo: bool, priority: in
     thread.start()
     thread.join()
     steal.stop()
-    ms = np.array([lateness for _, lateness in late], dtype=float) * 1e-6
-    starts = np.array([start for start, _ in late], dtype=np.int64)
+    starts, lateness = np.array(late, dtype=np.int64).reshape(-1, 2).T
+    ms = lateness * 1e-6
     return {"duration_s": duration_s, "sched_fifo": bool(realtime and realtime[0]), "ticks": len(ms),
             "lateness_p50_ms": float(np.percentile(ms, 50)), "lateness_p99_ms": float(np.percentile(ms, 99)),
             "lateness_max_ms": float(ms.max()), "late_over_2ms": int(np.sum(ms > 2.0)),
