@@ -66,6 +66,10 @@ FOLLOW_SPEEDS = (0.8, 0.6, 0.45, 0.3, 0.2, 0.1)  # of v_desired: slower speed pl
 # about 0.04 |c_i| (carsim_avoidance's overtake), and a plan that passes should not be made to follow.
 FOLLOW_SLACK = 0.25
 DRIVABLE_ROUNDING = 1e-9  # relative: the speed plan meets v^2 kappa = a_lat_max up to rounding
+# merged_later: the joins to the lane tried every JOIN_STEP m along the start's line, each a quintic
+# blend (peak curvature 5.77 d / L^2 for an offset d over a length L) at least JOIN_STEP m long
+JOIN_STEP = 5.0
+JOIN_CURVATURE = 5.78
 MOVER_PASSES = 3  # re-integrations with moving obstacles placed at the previous pass's arrival times
 STATIC_MEMO = 4096  # static obstacles whose implicit and term a planner keeps (``static_terms``)
 SIDE_RAYS = np.column_stack([np.cos(np.linspace(0.0, 2.0 * np.pi, 360, endpoint=False)),
@@ -698,6 +702,8 @@ class GuidancePlanner(PlannerBase):
                 return None
             lane = self._integrate_and_time(replace(field, movers=[]), prepared, start, t0, v0, h, None)
             slower = self.followed(field.movers, [(lane[1], _stops(lane[4])), (xy, _stops(v))], t0, v0, movers)
+            if slower is None:
+                slower = self.merged_later(prepared, movers, lane, t0, v0, h)
             if slower is not None:
                 if slower[0] is lane[1]:
                     res = lane[0]
@@ -710,6 +716,44 @@ class GuidancePlanner(PlannerBase):
         return GuidancePlan(trajectory=trajectory, xy=xy, s=s, kappa=kappa, v=v, raw=res.xy,
                             reached=res.reached, inherited=res.inherited, field=field, gammas=res.gammas,
                             virtual_off=res.virtual_off)
+
+    def merged_later(self, prepared: Prepared, movers: Sequence[ObstacleState], lane, t0: float, v0: float,
+                     h: np.ndarray | None):
+        """A car passing a slower one whose route turns back into its lane (a merge, the end of an
+        overtake) cannot fall behind it by braking beside it, and the lane (``lane``:
+        ``_integrate_and_time``'s result without the movers) cuts in ahead of it: the plan, when no
+        slower one keeps clear of the movers, goes on along the start's line at full speed and joins
+        the lane only where the movers, taken ``tight_mover_window`` s before and after, leave the
+        body their tight clearance (no less than it has now) all along. The join is a quintic blend
+        long enough to keep half of kappa_max and of the lateral acceleration limit at full speed
+        (``JOIN_CURVATURE``; the lane's own bends add to it); the joins are tried every ``JOIN_STEP``
+        m, nearest first. (xy, s, kappa, v, trajectory) like ``followed``'s, or None when no join
+        keeps clear and within the limits, or the lane does not leave the start's line."""
+        res, lane_xy, lane_s, _, _ = lane
+        goal = prepared.ends_path and res.reached
+        ahead = h if h is not None else lane_xy[1] - lane_xy[0]
+        line = lane_xy[0] + np.outer(lane_s, ahead / np.linalg.norm(ahead))       # the start's line
+        apart = np.linalg.norm(line - lane_xy, axis=1)
+        if not np.any(apart > CLEAR_TOLERANCE):
+            return None
+        p = self.params
+        shifts = (0.0,) if p.tight_mover_window <= 0.0 else (-p.tight_mover_window, 0.0, p.tight_mover_window)
+        keepouts = ([Keepout(o, self.tight_clearance(o), dt) for o in movers if o.moving for dt in shifts]
+                    + [Keepout(o, self.tight_clearance(o)) for o in prepared.statics])
+        bend = min(self.kappa_max, self.a_lat_max / self.v_desired ** 2) / 2.0    # the join's own, at full speed
+        for join in np.arange(JOIN_STEP, lane_s[-1], JOIN_STEP):
+            k = int(np.searchsorted(lane_s, join))
+            length = max(JOIN_STEP, float(np.sqrt(JOIN_CURVATURE * np.max(apart[k:]) / bend)))
+            u = np.clip((lane_s - join) / length, 0.0, 1.0)
+            w = (u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u))[:, None]
+            xy = (1.0 - w) * line + w * lane_xy
+            s, kappa, v, trajectory = self.timed(xy, self.v_desired, v0, t0, _stops(lane[4]))
+            if not self.keeps_limits(kappa, v) or np.max(np.abs(kappa)) > self.kappa_max * (1 + DRIVABLE_ROUNDING):
+                continue
+            gaps = disc_gaps(trajectory.pos, self.body, keepouts, trajectory.t)
+            if np.min(gaps) >= min(0.0, float(gaps[0])) - CLEAR_TOLERANCE and not self.touches_mover(movers, trajectory):
+                return xy, s, kappa, v, trajectory
+        return None
 
     def _yield_caps(self, s: np.ndarray, entry: float, across: float, v0: float):
         """The speed caps (K,) over arc lengths s that ``yielding`` tries, with the deceleration the

@@ -602,3 +602,23 @@ def test_a_walker_the_car_passes_ahead_of_and_one_farther_are_yielded_to_by_a_pl
     assert np.min(np.diff(plan.v ** 2) / (2.0 * np.diff(plan.s))) >= -params.a_yield - 1e-9
     assert not planner.meets_mover(field.movers, plan.trajectory)
     assert np.min(plan.v[plan.xy[:, 0] < 34.0]) < 0.8 * 7.0
+
+
+@pytest.mark.parametrize("beside", [1.5, 3.0])
+def test_a_route_that_turns_back_in_ahead_of_a_slower_car_beside_is_joined_past_it_at_speed(beside):
+    """The safety bench's cut_in: at 8 m/s the route turns back into the lane 1 m ahead of a 6 m/s
+    car whose front is ``beside`` m behind the car's rear axle line. Braking beside it keeps it
+    beside, and the lane cuts in ahead of it: the plan keeps its speed along its line and joins the
+    route only once the slower car, a tight_mover_window either side, leaves the body its tight
+    clearance (before, the plan braked to 6.3 m/s and swerved into it)."""
+    from vflpcd.controllers.vflpc import make_vflpc
+
+    scenario = load_scenario(config_dir() / "scenarios" / "safety" / "cut_in.toml")
+    planner = make_vflpc(scenario).planner
+    slow = ObstacleState("slow_car", Box(4.5, 1.9), np.array([-1.6 - beside, 0.0]), 0.0, np.array([6.0, 0.0]), 0.0)
+    plan = planner.plan(planner.prepare(0.0, []), np.array([0.0, 3.5]), 0.0, 8.0, [slow], heading=0.0)
+    assert np.min(plan.v) >= 8.0 - 1e-9
+    window = [Keepout(slow, planner.tight_clearance(slow), dt) for dt in (-1.0, 0.0, 1.0)]
+    assert planner.least_gap(plan.trajectory, window) > -CLEAR_TOLERANCE
+    assert not planner.touches_mover([slow], plan.trajectory)
+    assert abs(plan.xy[-1, 1]) < 0.05        # on the route again at the plan's end
