@@ -493,6 +493,13 @@ def _crossing_spans(xy: np.ndarray, s: np.ndarray, crossing: Sequence[ObstacleIm
     return sorted(spans)
 
 
+def _beyond_grid(prepared: Prepared, xy: np.ndarray) -> np.ndarray:
+    """How far each point of xy (K, 2) lies beyond the stretch's field grid (K,) (<= 0 inside)."""
+    xmin, xmax, ymin, ymax = prepared.grid.bounds
+    x, y = xy[:, 0], xy[:, 1]
+    return np.maximum.reduce([xmin - x, x - xmax, ymin - y, y - ymax])
+
+
 def _arrivals(s: np.ndarray, v: np.ndarray, t0: float) -> np.ndarray:
     """When the speed-planned points (arc lengths s, speeds v) are reached from t0; points beyond a
     stop when the stop is."""
@@ -672,11 +679,10 @@ class GuidancePlanner(PlannerBase):
         where otherwise (the replan fails, the plan before stays). The steps after the integration
         (fairing, the tight path) are held near the integrated path; this is the check that they
         were."""
-        xmin, xmax, ymin, ymax = prepared.grid.bounds
-        x, y = plan.xy[:, 0], plan.xy[:, 1]
-        beyond = np.maximum.reduce([xmin - x, x - xmax, ymin - y, y - ymax])
+        beyond = _beyond_grid(prepared, plan.xy)
         k = int(np.argmax(beyond))
         if not beyond[k] <= 0.0:
+            xmin, xmax, ymin, ymax = prepared.grid.bounds
             raise GuidanceError(f"the plan leaves the field's grid: {beyond[k]:.1f} m beyond it at "
                                 f"{plan.xy[k].round(1).tolist()} (grid x {xmin:.1f}..{xmax:.1f}, "
                                 f"y {ymin:.1f}..{ymax:.1f})")
@@ -724,8 +730,8 @@ class GuidancePlanner(PlannerBase):
         ``_integrate_and_time``'s result without the movers) cuts in ahead of it: the plan, when no
         slower one keeps clear of the movers, goes on along the start's line at full speed and joins
         the lane only where the movers, taken ``tight_mover_window`` s before and after, leave the
-        body their tight clearance (no less than it has now) all along. The join is a quintic blend
-        long enough to keep half of kappa_max and of the lateral acceleration limit at full speed
+        body their tight clearance (no less than it has now) all along, within the field's grid.
+        The join is a quintic blend long enough to keep half of kappa_max and of the lateral acceleration limit at full speed
         (``JOIN_CURVATURE``; the lane's own bends add to it); the joins are tried every ``JOIN_STEP``
         m, nearest first. (xy, s, kappa, v, trajectory) like ``followed``'s, or None when no join
         keeps clear and within the limits, or the lane does not leave the start's line."""
@@ -747,6 +753,8 @@ class GuidancePlanner(PlannerBase):
             u = np.clip((lane_s - join) / length, 0.0, 1.0)
             w = (u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u))[:, None]
             xy = (1.0 - w) * line + w * lane_xy
+            if np.max(_beyond_grid(prepared, xy)) > 0.0:       # the plan must stay on the field's grid (``within_grid``)
+                continue
             s, kappa, v, trajectory = self.timed(xy, self.v_desired, v0, t0, _stops(lane[4]))
             if not self.keeps_limits(kappa, v) or np.max(np.abs(kappa)) > self.kappa_max * (1 + DRIVABLE_ROUNDING):
                 continue

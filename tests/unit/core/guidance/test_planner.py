@@ -622,3 +622,24 @@ def test_a_route_that_turns_back_in_ahead_of_a_slower_car_beside_is_joined_past_
     assert planner.least_gap(plan.trajectory, window) > -CLEAR_TOLERANCE
     assert not planner.touches_mover([slow], plan.trajectory)
     assert abs(plan.xy[-1, 1]) < 0.05        # on the route again at the plan's end
+
+
+def test_a_join_along_a_line_that_leaves_the_field_s_grid_is_not_taken(tmp_path):
+    """cut_in with the route turning hard right after the merge: the start's line runs off the
+    field's grid before any join keeps clear of the slower car. Such a join is not taken (the
+    replan would fail on ``within_grid``, where the field's plan stood before); the plan comes back
+    and lies on the grid."""
+    from vflpcd.controllers.vflpc import make_vflpc
+
+    text = (config_dir() / "scenarios" / "safety" / "cut_in.toml").read_text()
+    turn = ("points = [[0.0, 3.5], [3.0, 3.5], [6.0, 3.0], [9.0, 1.5], [12.0, 0.3], [15.0, 0.0], [20.0, -1.0], "
+            "[24.0, -4.0], [27.0, -9.0], [29.0, -20.0], [30.0, -60.0]]\n")
+    start = text.index("points = [[")
+    end = text.index("]]", start) + 3
+    (tmp_path / "turn.toml").write_text(text[:start] + turn + text[end:])
+    planner = make_vflpc(load_scenario(tmp_path / "turn.toml")).planner
+    slow = ObstacleState("slow_car", Box(4.5, 1.9), np.array([-3.1, 0.0]), 0.0, np.array([6.0, 0.0]), 0.0)
+    prepared = planner.prepare(0.0, [])
+    plan = planner.plan(prepared, np.array([0.0, 3.5]), 0.0, 8.0, [slow], heading=0.0)
+    xmin, xmax, ymin, ymax = prepared.grid.bounds
+    assert np.all((plan.xy >= [xmin, ymin]) & (plan.xy <= [xmax, ymax]))
