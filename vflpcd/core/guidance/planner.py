@@ -733,8 +733,9 @@ class GuidancePlanner(PlannerBase):
         body their tight clearance (no less than it has now) all along, within the field's grid.
         The join is a quintic blend long enough to keep half of kappa_max and of the lateral acceleration limit at full speed
         (``JOIN_CURVATURE``; the lane's own bends add to it); the joins are tried every ``JOIN_STEP``
-        m, nearest first. (xy, s, kappa, v, trajectory) like ``followed``'s, or None when no join
-        keeps clear and within the limits, or the lane does not leave the start's line."""
+        m, nearest first; when none does, the start's line braked to rest (``_held``). (xy, s, kappa,
+        v, trajectory) like ``followed``'s, or None when neither keeps clear, or the lane does not
+        leave the start's line."""
         res, lane_xy, lane_s, _, _ = lane
         goal = prepared.ends_path and res.reached
         ahead = h if h is not None else lane_xy[1] - lane_xy[0]
@@ -758,10 +759,31 @@ class GuidancePlanner(PlannerBase):
             s, kappa, v, trajectory = self.timed(xy, self.v_desired, v0, t0, _stops(lane[4]))
             if not self.keeps_limits(kappa, v) or np.max(np.abs(kappa)) > self.kappa_max * (1 + DRIVABLE_ROUNDING):
                 continue
-            gaps = disc_gaps(trajectory.pos, self.body, keepouts, trajectory.t)
-            if np.min(gaps) >= min(0.0, float(gaps[0])) - CLEAR_TOLERANCE and not self.touches_mover(movers, trajectory):
+            if self._keeps_clear(keepouts, movers, trajectory):
                 return xy, s, kappa, v, trajectory
-        return None
+        return self._held(prepared, movers, keepouts, line, t0, v0)
+
+    def _held(self, prepared: Prepared, movers: Sequence[ObstacleState], keepouts: Sequence[Keepout],
+              line: np.ndarray, t0: float, v0: float):
+        """``merged_later``'s last resort when no join keeps clear: the start's line braked to rest
+        before the first static obstacle on it (or the field's grid's edge), so the slower car
+        goes by beside and the next plan joins behind it. (xy, s, kappa, v, trajectory), or None
+        when that stop does not keep clear either."""
+        statics = [k for k in keepouts if not k.obstacle.moving]
+        free = disc_gaps(line, self.body, statics) if statics else np.full(len(line), np.inf)
+        ahead = (free >= min(0.0, float(free[0])) - CLEAR_TOLERANCE) & (_beyond_grid(prepared, line) <= 0.0)
+        end = int(np.argmin(ahead)) if not np.all(ahead) else len(line)
+        if end < 3:
+            return None
+        xy = line[:end]
+        s, kappa, v, trajectory = self.timed(xy, self.v_desired, v0, t0, True)
+        return (xy, s, kappa, v, trajectory) if self._keeps_clear(keepouts, movers, trajectory) else None
+
+    def _keeps_clear(self, keepouts: Sequence[Keepout], movers: Sequence[ObstacleState], trajectory: Trajectory) -> bool:
+        """Whether the timed trajectory keeps the keepouts' clearances, no less than at its start,
+        and lets the body into no mover."""
+        gaps = disc_gaps(trajectory.pos, self.body, keepouts, trajectory.t)
+        return np.min(gaps) >= min(0.0, float(gaps[0])) - CLEAR_TOLERANCE and not self.touches_mover(movers, trajectory)
 
     def _yield_caps(self, s: np.ndarray, entry: float, across: float, v0: float):
         """The speed caps (K,) over arc lengths s that ``yielding`` tries, with the deceleration the

@@ -643,3 +643,19 @@ def test_a_join_along_a_line_that_leaves_the_field_s_grid_is_not_taken(tmp_path)
     plan = planner.plan(prepared, np.array([0.0, 3.5]), 0.0, 8.0, [slow], heading=0.0)
     xmin, xmax, ymin, ymax = prepared.grid.bounds
     assert np.all((plan.xy >= [xmin, ymin]) & (plan.xy <= [xmax, ymax]))
+
+
+@pytest.mark.parametrize("parked_x", [22.0, 30.0])
+def test_a_parked_car_on_the_start_s_line_beside_a_slower_car_makes_the_plan_stop_before_it(parked_x):
+    """cut_in with a car parked in the passing lane ahead: no join past the slower car keeps clear
+    before it, and the field's plan turned in and was hit (the whole loop: a collision at 0 supervisor
+    interventions). The plan holds its line and brakes to rest before the parked car, clear of both."""
+    from vflpcd.controllers.vflpc import make_vflpc
+
+    planner = make_vflpc(load_scenario(config_dir() / "scenarios" / "safety" / "cut_in.toml")).planner
+    slow = ObstacleState("slow_car", Box(4.5, 1.9), np.array([-3.1, 0.0]), 0.0, np.array([6.0, 0.0]), 0.0)
+    parked = static("parked", Box(4.6, 1.9), parked_x, 3.5)
+    plan = planner.plan(planner.prepare(0.0, [parked]), np.array([0.0, 3.5]), 0.0, 8.0, [slow], heading=0.0)
+    assert plan.v[-1] == 0.0 and np.max(plan.xy[:, 0]) < parked_x
+    assert planner.least_gap(plan.trajectory, [Keepout(parked, planner.tight_clearance(parked))]) > -CLEAR_TOLERANCE
+    assert not planner.touches_mover([slow], plan.trajectory)
