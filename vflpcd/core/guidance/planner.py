@@ -341,8 +341,7 @@ class PlannerBase:
         if p.tight_length <= 0.0 or not (prepared.statics or movers):
             return None
         anchor = partial(self.path.anchors, s0=prepared.s0 - 5.0, s1=prepared.s_end + 5.0)
-        shifts = (0.0,) if p.tight_mover_window <= 0.0 else (-p.tight_mover_window, 0.0, p.tight_mover_window)
-        moving = [Keepout(o, self.tight_clearance(o), dt) for o in movers for dt in shifts]
+        moving = self.mover_keepouts(movers)
         keepouts = [Keepout(o, self.tight_clearance(o)) for o in prepared.statics] + moving
         times = field_times = _arrivals(s, v, t0)
         if moving:      # the field's timed path may pass a mover closer than the clearance: no closer than it
@@ -361,6 +360,13 @@ class PlannerBase:
             nearest = np.argmin(((xy[:, None, :] - out[0][None, :, :]) ** 2).sum(axis=2), axis=1)
             times = _arrivals(s_t, v_t, t0)[nearest]
         return None
+
+    def mover_keepouts(self, movers: Sequence[ObstacleState]) -> list[Keepout]:
+        """The movers' tight clearances (``tight_clearance``), each mover taken where it is
+        ``tight_mover_window`` s before and after the time a point is reached, and then."""
+        w = self.params.tight_mover_window
+        shifts = (0.0,) if w <= 0.0 else (-w, 0.0, w)
+        return [Keepout(o, self.tight_clearance(o), dt) for o in movers for dt in shifts]
 
     def least_gap(self, trajectory: Trajectory, keepouts: Sequence[Keepout]) -> float:
         """The least gap (``disc_gaps``) of the body along a timed trajectory to the keepouts, m."""
@@ -731,21 +737,18 @@ class GuidancePlanner(PlannerBase):
         slower one keeps clear of the movers, goes on along the start's line at full speed and joins
         the lane only where the movers, taken ``tight_mover_window`` s before and after, leave the
         body their tight clearance (no less than it has now) all along, within the field's grid.
-        The join is a quintic blend long enough to keep half of kappa_max and of the lateral acceleration limit at full speed
-        (``JOIN_CURVATURE``; the lane's own bends add to it); the joins are tried every ``JOIN_STEP``
-        m, nearest first; when none does, the start's line braked to rest (``_held``). (xy, s, kappa,
+        The join is a quintic blend long enough to keep half of kappa_max and of the lateral
+        acceleration limit at full speed (``JOIN_CURVATURE``; the lane's own bends add to it); the
+        joins are tried every ``JOIN_STEP`` m, nearest first; when none does, the start's line braked to rest (``_held``). (xy, s, kappa,
         v, trajectory) like ``followed``'s, or None when neither keeps clear, or the lane does not
         leave the start's line."""
-        res, lane_xy, lane_s, _, _ = lane
-        goal = prepared.ends_path and res.reached
+        _, lane_xy, lane_s, _, _ = lane
         ahead = h if h is not None else lane_xy[1] - lane_xy[0]
         line = lane_xy[0] + np.outer(lane_s, ahead / np.linalg.norm(ahead))       # the start's line
         apart = np.linalg.norm(line - lane_xy, axis=1)
         if not np.any(apart > CLEAR_TOLERANCE):
             return None
-        p = self.params
-        shifts = (0.0,) if p.tight_mover_window <= 0.0 else (-p.tight_mover_window, 0.0, p.tight_mover_window)
-        keepouts = ([Keepout(o, self.tight_clearance(o), dt) for o in movers if o.moving for dt in shifts]
+        keepouts = (self.mover_keepouts([o for o in movers if o.moving])
                     + [Keepout(o, self.tight_clearance(o)) for o in prepared.statics])
         bend = min(self.kappa_max, self.a_lat_max / self.v_desired ** 2) / 2.0    # the join's own, at full speed
         for join in np.arange(JOIN_STEP, lane_s[-1], JOIN_STEP):
