@@ -114,6 +114,31 @@ def test_the_3d_steps_are_warmed_for_the_types_the_3d_planner_passes():
     assert len(loop.signatures) == before
 
 
+def test_the_path_grid_fill_is_warmed_for_the_types_the_planner_passes():
+    """A plan on a bent road with a parked car fills its path grid's blocks through the warmed loop
+    and adds no signature to it (a worker compiles nothing at its first replan)."""
+    import numpy as np
+
+    from vflpcd.config.scenarios import default_guidance
+    from vflpcd.core.guidance.planner import GuidancePlanner
+    from vflpcd.core.obstacles import ObstacleState
+    from vflpcd.core.path import ReferencePath
+    from vflpcd.core.shapes import Box
+
+    loop = loops.path_fill_loop()
+    assert loop is not None and loops.guidance_loops().path_fill is loop
+    before = len(loop.signatures)
+    assert before == 1
+    path = ReferencePath.from_waypoints(np.array([[0.0, 0.0], [30.0, 0.0], [60.0, 8.0]]))
+    planner = GuidancePlanner(path, default_guidance(), 6.0, 3.0, 1.0, 0.05, loops=loops.guidance_loops)
+    car = ObstacleState(id="car", shape=Box(4.5, 1.9), center=np.array([25.0, 0.4]), yaw=0.0,
+                        velocity=np.zeros(2), stamp=0.0)
+    prepared = planner.prepare(0.0, [car])
+    planner.plan(prepared, np.zeros(2), 0.0, 6.0, heading=0.0)
+    assert prepared.grid.path.loop is loop and sum(map(sum, prepared.grid.path.filled)) > 5
+    assert len(loop.signatures) == before
+
+
 WORKER = """
 import pickle, sys, time
 planner = pickle.load(open(sys.argv[1], "rb"))

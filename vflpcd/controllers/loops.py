@@ -5,8 +5,8 @@ Core stays pure (numpy and scipy only, no files): it writes a loop as plain Pyth
 ``vflpcd.core.control.tick_kernel``'s ``window_loop`` and ``linearisation_loop``,
 ``vflpcd.core.dynamics.gp_kernel``'s ``add_sample_loop``, ``corrected_next_loop`` and ``ald_delta_loop``,
 ``vflpcd.core.path_kernel.nearest_segment``,
-and the guidance's ``active_set_kernel.solve_loop``, ``integrate_kernel.step_loop`` and
-``half_plane_kernel``'s ``half_planes_loop`` and ``clear_loop``) and takes the compiled function as an argument. This
+and the guidance's ``active_set_kernel.solve_loop``, ``integrate_kernel.step_loop``,
+``path_grid_kernel.fill_loop`` and ``half_plane_kernel``'s ``half_planes_loop`` and ``clear_loop``) and takes the compiled function as an argument. This
 module compiles each once per process, with numba's on-disk cache (beside the source, or numba's
 user-wide cache where that is read-only, or ``$NUMBA_CACHE_DIR``; the systemd unit sets it), so a
 later process loads it in milliseconds; with no writable place it compiles in memory at every
@@ -117,6 +117,16 @@ def half_planes_loop():
 
 
 @lru_cache(maxsize=1)
+def path_fill_loop():
+    """``path_grid_kernel.fill_loop`` (the path's chi_P^ on a block of the guidance's grid) compiled
+    and loaded (``_warm_path_fill``), or None without numba."""
+    from vflpcd.core.guidance.path_grid_kernel import fill_loop
+
+    _scalars()
+    return _compiled("path_fill", fill_loop, _warm_path_fill)
+
+
+@lru_cache(maxsize=1)
 def clear_loop():
     """``half_plane_kernel.clear_loop`` (the fairing's clear check) compiled and loaded
     (``_warm_clear``), or None without numba."""
@@ -145,7 +155,7 @@ def guidance_loops():
     if active_set is None:
         return None
     return GuidanceLoops(active_set=active_set, steps=integrate_loop(), half_planes=half_planes_loop(),
-                         steps3d=integrate3d_loop(), clear=clear_loop())
+                         steps3d=integrate3d_loop(), clear=clear_loop(), path_fill=path_fill_loop())
 
 
 def compile_all() -> dict[str, bool]:
@@ -318,6 +328,14 @@ def _warm_integrate(loop) -> None:
     loop(z(7), z((2, 2)), z((1, 1, 2)), np.ones((1, 1), bool), np.array([0.0, 0.0, 1.0, 32.0]), z((0, 6)), z(0),
          z(0), z((0, 13)), z((0, 18)), z(0, np.int64), np.array([0.3, 0.2, 1.0, 1.0, 1e-3, 0.1, 1.0, 1.0, 0.0, 0.0,
          1.0, 0.0, 0.0, 1.0]), z(0), z(3, np.int64))
+
+
+def _warm_path_fill(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``grid.PathGrid.fill`` passes."""
+    import numpy as np
+
+    loop(np.zeros(1), np.zeros(1), np.zeros(2), np.eye(2), np.array([0.0, 1.0]), np.zeros((4, 1)), -1.0, 1.0,
+         np.zeros((1, 1, 2)))
 
 
 def _warm_clear(loop) -> None:

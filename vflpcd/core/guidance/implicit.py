@@ -112,6 +112,11 @@ class GraphPath:
     def to_local(self, p: np.ndarray) -> np.ndarray:
         return (p - self.origin) @ self.R
 
+    def pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(origin, R, breakpoints (n + 1,), coefficients (4, n)) of f: what the compiled path grid
+        fill (``path_grid_kernel.fill_loop``) evaluates ``value_grad`` from."""
+        return self.origin, self.R, self.f.x, self.f.c
+
     def _f(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         xc = np.clip(x, self.x0, self.x1)
         f, df = self.f(xc), self.df(xc)

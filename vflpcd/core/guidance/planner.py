@@ -113,13 +113,15 @@ class GuidanceLoops:
     """The guidance's loops compiled (``vflpcd.controllers.loops.guidance_loops``), None each where
     its numpy path runs: the fairing's and tight path's active set (``active_set_kernel``), the
     steps of eq. (xi_r) (``integrate_kernel``), the fairing's half-planes and clear check
-    (``half_plane_kernel``) and the 3-D steps (``integrate3d_kernel``, run interpreted where None)."""
+    (``half_plane_kernel``), the 3-D steps (``integrate3d_kernel``, run interpreted where None) and
+    the path grid's fill (``path_grid_kernel``)."""
 
     active_set: Callable | None = None
     steps: Callable | None = None
     half_planes: Callable | None = None
     steps3d: Callable | None = None
     clear: Callable | None = None
+    path_fill: Callable | None = None
 
 
 class PlannerBase:
@@ -641,7 +643,8 @@ class GuidancePlanner(PlannerBase):
             field.virtuals = [v for t in terms.values() if (v := self.virtual_for(t, s0, s_end, graph)) is not None]
         if ends_path:
             self.check_clear(self.path.point_at(self.path.length), terms.values(), 0.0, "goal")
-        grid = FieldGrid.build(field, (lo[0] - pad, hi[0] + pad, lo[1] - pad, hi[1] + pad), p.grid_resolution)
+        grid = FieldGrid.build(field, (lo[0] - pad, hi[0] + pad, lo[1] - pad, hi[1] + pad), p.grid_resolution,
+                               self._loops().path_fill)
         x_end = float(graph.progress(self.path.point_at(s_end)[None, :])[0]) - (p.beta if ends_path else 0.0)
         return Prepared(field=field, grid=grid, s0=s0, s_end=s_end, x_end=x_end, ends_path=ends_path,
                         statics=tuple(o for o in statics if o.id in terms))

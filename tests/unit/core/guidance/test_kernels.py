@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from vflpcd.config.scenarios import default_guidance
-from vflpcd.controllers.loops import clear_loop, guidance_loops, half_planes_loop, integrate_loop
+from vflpcd.controllers.loops import clear_loop, guidance_loops, half_planes_loop, integrate_loop, path_fill_loop
 from vflpcd.core.guidance.fairing import Region, compiled_clear, compiled_half_planes, half_planes, regions_clear
-from vflpcd.core.guidance.grid import integrate
+from vflpcd.core.guidance.grid import FieldGrid, integrate
 from vflpcd.core.guidance.planner import GuidancePlanner, _value_grad_at_times, _within_reach
 from vflpcd.core.obstacles import ObstacleState
 from vflpcd.core.path import ReferencePath
@@ -51,6 +51,24 @@ def test_the_compiled_steps_are_the_interpreted_ones(scene, timed):
     assert compiled.gammas == interpreted.gammas and None not in compiled.gammas
     assert compiled.virtual_off == interpreted.virtual_off and compiled.virtual_off[0] is not None
     assert compiled.inherited == interpreted.inherited and compiled.reached
+
+
+def test_the_compiled_path_grid_fill_is_the_numpy_one(scene):
+    """Every block of the bent path's grid, which reaches past both ends of its spline (the linear
+    continuation) and over every piece: the same chi_P^ to 1e-12, unit vectors."""
+    planner, prepared, field = scene
+    x0, x1, y0, y1 = prepared.grid.bounds
+    ends = prepared.field.path.to_local(np.array([[x0, y0], [x1, y1]]))[:, 0]
+    assert ends[0] < prepared.field.path.x0 and ends[1] > prepared.field.path.x1
+    grids = [FieldGrid.build(prepared.field, prepared.grid.bounds, 0.1, fill).path for fill in (None, path_fill_loop())]
+    for g in grids:
+        for bi, row in enumerate(g.filled):
+            for bj in range(len(row)):
+                g.fill(bi, bj)
+    numpy_fill, compiled = grids
+    assert compiled.loop is not None and numpy_fill.loop is None and compiled.data.shape[0] * compiled.data.shape[1] > 1e5
+    np.testing.assert_allclose(compiled.data, numpy_fill.data, rtol=0.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(compiled.data, axis=-1), 1.0, atol=1e-12)
 
 
 def test_the_compiled_half_planes_are_the_numpy_ones(scene):
