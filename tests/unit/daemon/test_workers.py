@@ -174,3 +174,29 @@ def test_a_watched_child_lives_on_while_its_parent_does():
                           "lifeline.watch(os.getppid()); time.sleep(0.3); print('alive')"],
                          capture_output=True, text=True, timeout=30)
     assert run.returncode == 0 and run.stdout.strip() == "alive", run.stderr
+
+
+WARMED_CHILD = """
+import pickle, sys
+from vflpcd.daemon import workers
+planner, job = pickle.load(open(sys.argv[1], "rb"))
+workers._init_worker(planner)
+workers._warm_up()
+before = set(sys.modules)
+workers._run_replan(job)
+print(" ".join(sorted(set(sys.modules) - before)))
+"""
+
+
+def test_a_warmed_worker_imports_nothing_at_its_first_replan(setup, tmp_path):
+    """What a spawned worker loads before its first job (``_warm_up``) is all its replans import: a
+    module imported inside the planning code (scipy.ndimage, 0.2-0.5 s) made the first replan of
+    every worker that long."""
+    import pickle
+
+    ctl, _ = setup
+    f = tmp_path / "job.pkl"
+    f.write_bytes(pickle.dumps((ctl.planner, ctl.take_replan(force_at=10.0))))
+    out = subprocess.run([sys.executable, "-c", WARMED_CHILD, str(f)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == ""

@@ -15,6 +15,7 @@ dt = 2 ds / (v_k + v_{k+1}).
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import gaussian_filter1d    # at import: a worker's first replan does not load it (0.2-0.5 s)
 
 CURVATURE_WINDOW = 1.0   # m: a path's bend is its heading's change over this much arc length (``windowed_curvature``)
 # m: the curvature's rate of change is taken over this much arc length (``curvature_rate``). The
@@ -148,8 +149,6 @@ def smooth_path(raw: np.ndarray, sigma: float) -> np.ndarray:
     1 - (10 x^3 - 15 x^4 + 6 x^5), whose first and second derivatives vanish at both ends, so the
     fade adds no kink and no curvature step where it ends (a linear fade did: a one-sample
     curvature dip that the timed reference turned into a yaw-rate spike)."""
-    from scipy.ndimage import gaussian_filter1d
-
     xy = gaussian_filter1d(raw, sigma=max(sigma, 1e-6), axis=0, mode="nearest")
     x = np.clip(np.arange(len(xy)) / max(3.0 * sigma, 1.0), 0.0, 1.0)
     fade = 1.0 - x ** 3 * (10.0 - 15.0 * x + 6.0 * x ** 2)
