@@ -3,8 +3,9 @@
 Each control step k at t_k = k * control_period: the obstacle triggers are updated from
 the robot position, the controller maps (x_k, t_k, perceived obstacles) to u_k (its wall
 time is t_cal), the safety guard (``vflpcd.core.safety``, the same as in the daemon) passes u_k or
-replaces it with the emergency manoeuvre (its wall time is t_sup), everything is recorded, and the
-plant integrates the command over one period. A controller with worker work (``jobs``: VF-LPC's
+replaces it with the emergency manoeuvre (its wall time is t_sup), the controller does what its
+command did not wait for (``settle``: VF-LPC's GP sample; its wall time is t_settle), everything is
+recorded, and the plant integrates the command over one period. A controller with worker work (``jobs``: VF-LPC's
 replans and GP refits, which the daemon runs on workers) has it run inline after the plant step
 (``vflpcd.core.jobs.run_inline``), outside t_cal; its wall time is t_background.
 
@@ -51,7 +52,7 @@ class RunRecord:
     (M, n_obs, d); clearance (M, n_obs), NaN while an obstacle is absent; t_background (M,) s
     of worker work after each step (0 where no job ran); sent (M, n_u) the command
     after the safety guard; override (M,) 1 where the supervisor replaced it; t_sup (M,) s of the
-    guard's work; failsafe: the guard's reason for giving up ("" if it did not).
+    guard's work; t_settle (M,) s of the controller's ``settle`` after the command; failsafe: the guard's reason for giving up ("" if it did not).
     """
 
     scenario: str
@@ -77,6 +78,7 @@ class RunRecord:
     sent: np.ndarray
     override: np.ndarray
     t_sup: np.ndarray
+    t_settle: np.ndarray
     outcome: str
     t_com: float | None
     failsafe: str = ""
@@ -102,7 +104,7 @@ def run_closed_loop(scenario: Scenario, controller: ControllerBase, seed: int = 
     rows: dict[str, list] = {k: [] for k in ("t", "state", "position", "velocity", "psi", "command", "applied",
                                              "t_cal", "ref_point", "ref_heading", "lateral", "progress",
                                              "obstacle_center", "clearance", "t_background", "sent",
-                                             "override", "t_sup")}
+                                             "override", "t_sup", "t_settle")}
     s_prev, progress, outcome, t_com = None, 0.0, "timeout", None
     failsafe, rest_since = "", None
     jobs = controller.jobs
@@ -138,6 +140,11 @@ def run_closed_loop(scenario: Scenario, controller: ControllerBase, seed: int = 
             t_sup = (time.perf_counter_ns() - t0) * 1e-9
             sent, override = gs.command, gs.verdict.override
             failsafe = gs.trip or ""
+        t_settle = 0.0
+        if not failsafe:
+            t0 = time.perf_counter_ns()
+            controller.settle()
+            t_settle = (time.perf_counter_ns() - t0) * 1e-9
 
         centers = np.array([world.center(i, t) for i in range(len(world.specs))]).reshape(-1, scenario.dim)
         clear = np.array([scenario.footprint.clearance(o.shape, centers[i], o.yaw, pos, yaw)
@@ -148,7 +155,7 @@ def run_closed_loop(scenario: Scenario, controller: ControllerBase, seed: int = 
                            ("t_cal", t_cal), ("ref_point", proj.point), ("ref_heading", heading_ref),
                            ("lateral", proj.lateral), ("progress", progress),
                            ("obstacle_center", centers), ("clearance", clear), ("sent", sent),
-                           ("override", float(override)), ("t_sup", t_sup)):
+                           ("override", float(override)), ("t_sup", t_sup), ("t_settle", t_settle)):
             rows[key].append(value)
         rows["t_background"].append(0.0)
 
@@ -211,6 +218,9 @@ def evaluate(record: RunRecord, scenario: Scenario) -> dict:
     sup = record.t_sup[record.t_sup > 0]
     metrics["t_sup_median"] = float(np.median(sup)) if sup.size else 0.0
     metrics["t_sup_p99"] = float(np.percentile(sup, 99)) if sup.size else 0.0
+    settle = record.t_settle[record.t_cal > 0]
+    metrics["t_settle_median"] = float(np.median(settle)) if settle.size else 0.0
+    metrics["t_settle_p99"] = float(np.percentile(settle, 99)) if settle.size else 0.0
     metrics["impact_speed"] = impact_speed(record)
     return metrics
 

@@ -31,6 +31,7 @@ def test_every_registered_controller_keeps_the_controller_port(name, platform):
     ctl.prepare(plant.state, 0.0, ())
     u = np.asarray(ctl.step(plant.state, 0.0, ()), float)
     assert u.shape == (len(plant.control_names),) and np.all(np.isfinite(u))
+    ctl.settle()                                   # after the command (the runner and the daemon call it)
     assert isinstance(ctl.status(), ControllerStatus)
     ref = ctl.reference_at(0.0)
     assert ref is None or ref.shape == (scenario.dim,)

@@ -4,8 +4,10 @@ Runs a mission (default ``config/missions/bench_loop.toml``: VF-LPC with the onl
 closed racing track, the in-process plant, a guidance refresh and a GP refit check every second,
 telemetry on) at ``rate`` Hz for ``duration`` seconds through the real daemon, with a live Zenoh
 subscriber counting the telemetry it receives; then reads the flight log and prints the start
-lateness and compute histograms, the counts that the acceptance asks for (ticks whose compute
-exceeded the period, p99 start lateness), and the worker activity. Writes JSON and PNG.
+lateness and compute histograms (compute: ``controller.step``, the command's latency), the
+controller's ``settle`` after the command and the tick's whole work, the counts that the acceptance
+asks for (ticks whose compute exceeded the period, p99 start lateness), and the worker activity.
+Writes JSON and PNG.
 
 Before the daemon, in the same run, an empty loop ticks for ``baseline`` seconds at the same
 rate, with the same rate keeper and scheduling: how late the machine itself starts a thread that
@@ -159,6 +161,10 @@ def bench_loop(mission_path: Path | None, rate_hz: float, duration_s: float, exe
         "lateness_max_ms": float(late.max()), "late_over_2ms": int(np.sum(late > 2.0)),
         "compute_p50_ms": float(np.percentile(comp, 50)), "compute_p99_ms": float(np.percentile(comp, 99)),
         "compute_max_ms": float(comp.max()), "overruns": int(np.sum(log.overrun[timed])),
+        "settle_p50_ms": loop.counters.settle.percentile(50) * 1e3 if loop is not None else None,
+        "settle_p99_ms": loop.counters.settle.percentile(99) * 1e3 if loop is not None else None,
+        "work_p50_ms": loop.counters.work.percentile(50) * 1e3 if loop is not None else None,
+        "work_p99_ms": loop.counters.work.percentile(99) * 1e3 if loop is not None else None,
         "skipped": int(loop.rate.skipped) if loop is not None else None,
         "replans": len(loop.workers.latencies["replan"]) if loop and loop.workers else None,
         "refits": len(loop.workers.latencies["refit"]) if loop and loop.workers else None,
@@ -189,6 +195,10 @@ def _print(f: dict) -> None:
           f"{f['lateness_max_ms']:.4f} ms")
     print(f"compute p50 / p99 / max          {f['compute_p50_ms']:.3f} / {f['compute_p99_ms']:.3f} / "
           f"{f['compute_max_ms']:.3f} ms")
+    if f["settle_p50_ms"] is not None:
+        print(f"after the command: the controller's settle p50 / p99 {f['settle_p50_ms']:.3f} / "
+              f"{f['settle_p99_ms']:.3f} ms; the tick's whole work p50 / p99 {f['work_p50_ms']:.3f} / "
+              f"{f['work_p99_ms']:.3f} ms")
     print(f"overruns {f['overruns']}, skipped deadlines {f['skipped']}, replans {f['replans']} "
           f"(longest {f['replan_latency_max_s']:.3f} s), GP refits {f['refits']} "
           f"(longest {f['refit_latency_max_s']:.3f} s)")

@@ -69,6 +69,9 @@ class DrillController(ControllerBase):
     def reset(self) -> None:
         self.inner.reset()
 
+    def settle(self) -> None:
+        self.inner.settle()
+
     def step(self, state, t, obstacles=()):
         if t >= self.drill.at_s:
             first, self.fired = not self.fired, True

@@ -150,6 +150,11 @@ class ControllerBase:
     def prepare(self, state: np.ndarray, t: float, obstacles: Sequence[ObstacleState] = ()) -> None:
         """Before the first tick, from the first state (VF-LPC plans its first reference)."""
 
+    def settle(self) -> None:
+        """After a step's command is sent: the step's work that the command does not wait for (a
+        learning controller's sample of the transition it saw). A controller whose ``settle`` is not
+        called does it at its next step; nothing to do by default."""
+
 
 class PlatformBase:
     """The ``Platform`` port with safe defaults for its optional members: ``prepare`` does nothing

@@ -416,6 +416,7 @@ class VFLPC(ControllerBase):
         self._s = None
         self._u_prev: np.ndarray | None = None
         self._last: tuple[TickFrame, np.ndarray] | None = None
+        self._sample: tuple[tuple[TickFrame, np.ndarray], TickFrame] | None = None   # for ``settle``
         self._since_refit = 0
         self._pending: ReplanJob | None = None
         self._asked: tuple[ReplanJob, dict[str, np.ndarray], int] | None = None
@@ -440,6 +441,7 @@ class VFLPC(ControllerBase):
             self._guidance(pos, vel, state, t, obstacles)
 
     def step(self, state: np.ndarray, t: float, obstacles: Sequence[ObstacleState] = ()) -> np.ndarray:
+        self.settle()                   # a sample that nobody settled after the last step
         state, obstacles, pos, vel = self._inputs(state, obstacles)
         self._t_last = float(t)
         self._guidance(pos, vel, state, t, obstacles)
@@ -447,8 +449,6 @@ class VFLPC(ControllerBase):
         frame = self.errors.frame(state, ref)
         observe_now = self._ticks % self._observe_every == 0
         self._ticks += 1
-        if observe_now:
-            self._observe(frame)
         u_prev = self._u_prev if self._u_prev is not None else np.clip(np.zeros(self.model.n_u), self.limits.u_min,
                                                                           self.limits.u_max)
         gp = self.compensator.model if self.compensator is not None else None
@@ -465,8 +465,21 @@ class VFLPC(ControllerBase):
         self.solver.shift()
         self._u_prev = u
         if observe_now:
+            if self.compensator is not None and self._last is not None:
+                self._sample = (self._last, frame)
             self._last = (frame, u)
         return u
+
+    def settle(self) -> None:
+        """Offer the transition the last step saw (the previous sampled lifted state, the command
+        applied there, the current state in that window frame) to the GP: work the command does not
+        wait for, done after it is sent (``ControllerBase.settle``), else at the next step's start.
+        The GP of a step is the one before its own transition's sample (the sample is folded in
+        before the next step), and the command goes out without waiting for the sample's lift,
+        residual, dictionary test and rank-one update (a quarter of a learning tick)."""
+        sample, self._sample = self._sample, None
+        if sample is not None:
+            self._observe(*sample)
 
     def reference_at(self, t: float) -> np.ndarray | None:
         """The current plan's reference position (d,) at time t; None before the first plan."""
@@ -829,11 +842,9 @@ class VFLPC(ControllerBase):
             return None
         return u_tilde
 
-    def _observe(self, frame: TickFrame) -> None:
-        """Offer the last transition (previous lifted state, applied command, current state in the
-        previous window frame) to the GP."""
-        if self.compensator is None or self._last is None:
-            return
-        prev, u = self._last
+    def _observe(self, last: tuple[TickFrame, np.ndarray], frame: TickFrame) -> None:
+        """Offer the transition from ``last`` (its frame and the command applied there) to ``frame``
+        (previous lifted state, applied command, current state in the previous window frame) to the GP."""
+        prev, u = last
         self.compensator.observe(prev.U, u, self.errors.lifted_next(prev.origin, frame.origin))
         self._since_refit += 1

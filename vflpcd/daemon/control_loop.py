@@ -7,7 +7,8 @@ Every tick (``_tick``):
    the command checked, passed through the safety guard (``vflpcd.core.safety``: the supervisor's
    collision check, which may replace it with the emergency manoeuvre, and the monitors of the plan,
    the tracking and the vehicle's response, any of which may trip the failsafe) and handed to the
-   platform on the asyncio loop (never awaited here);
+   platform on the asyncio loop (never awaited here), then the controller's work that the command
+   did not wait for (``controller.settle``: VF-LPC's GP sample; timed: settle);
 4. the tick is recorded (flight log) and offered to telemetry (both non-blocking);
 5. progress along the path: at the goal the vehicle is brought to rest (mission complete);
 6. overrun accounting (the tick's work ran past the next deadline), due worker jobs submitted,
@@ -68,6 +69,7 @@ class Counters:
     compute: TimingStats = field(default_factory=TimingStats)
     work: TimingStats = field(default_factory=TimingStats)
     supervise: TimingStats = field(default_factory=TimingStats)
+    settle: TimingStats = field(default_factory=TimingStats)
 
 
 class ControlLoop:
@@ -180,6 +182,12 @@ class ControlLoop:
             if reason is None:
                 self._send(u)
                 command = tuple(u.tolist())
+                s0 = time.perf_counter_ns()
+                try:
+                    self.controller.settle()
+                except Exception as exc:
+                    reason = f"controller_error: {type(exc).__name__}: {exc}"
+                c.settle.add((time.perf_counter_ns() - s0) * 1e-9)
         if reason is not None and self.mode == RUNNING:
             self.trip(reason)
         work_end = self.clock()

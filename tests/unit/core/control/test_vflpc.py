@@ -119,3 +119,34 @@ def test_a_failed_solve_goes_on_with_the_last_plan_before_the_terminal_lqr(strai
     ctrl._ticks = 7 + ctrl.N                         # its steps spent: the terminal LQR law
     assert ctrl._solve(problem, None, K).tolist() == [-3.0, -3.0]
     assert ctrl.fallbacks == ctrl.N
+
+
+def _learning_run(scenario, settle: bool, steps: int = 60):
+    """Commands and GP sample counts of a learning VF-LPC driven on the plant, with ``settle`` called
+    after each command or left to the next step."""
+    ctrl = make_vflpc(scenario, compensation=True)
+    plant = make_plant(scenario, 0)
+    commands, samples = [], []
+    for k in range(steps):
+        before = ctrl.compensator.n_buffered
+        u = ctrl.step(plant.state, k * 0.05)
+        samples.append((before, ctrl.compensator.n_buffered))
+        if settle:
+            ctrl.settle()
+            samples[-1] += (ctrl.compensator.n_buffered,)
+        commands.append(u)
+        plant.step(u, 0.05)
+    return np.array(commands), samples
+
+
+def test_the_gp_sample_of_a_step_is_taken_after_its_command_by_settle_or_at_the_next_step(straight):
+    """The command does not wait for the sample of the transition it saw: ``settle`` takes it after
+    the command (one sample a step from the second on), and a caller that never settles gets the
+    same commands, the sample taken at the next step's start."""
+    settled, with_settle = _learning_run(straight, settle=True)
+    unsettled, without = _learning_run(straight, settle=False)
+    assert all(step == before for before, step, _ in with_settle)                  # step itself adds none
+    assert [after - step for _, step, after in with_settle] == [0] + [1] * (len(with_settle) - 1)
+    assert [step - before for before, step in without[2:]] == [1] * (len(without) - 2)   # the one before's
+    assert without[-1][1] == with_settle[-1][2] - 1                                 # the last one still pending
+    np.testing.assert_array_equal(unsettled, settled)
