@@ -71,6 +71,7 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
     cost.check_known({"q_ground", "r_ground", "r_rate_ground", "q_aerial", "r_aerial", "r_rate_aerial", "q_lift",
                       "gamma", "r_rate_threat_ground", "r_rate_threat_aerial",
                       "r_rate_light_ground", "r_rate_light_aerial", "light_hold", "light_speeds", "light_offsets",
+                      "slow_speeds", "speed_scaled_increments_ground", "speed_scaled_increments_aerial",
                       "command_increments_ground", "command_increments_aerial"})
     hor.check_known({"seconds"})
     sol.check_known({"i_max", "tol", "eta_a", "divergence"})
@@ -100,6 +101,14 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
     light_offsets = cost.vector("light_offsets", 2) if cost.has("light_offsets") else np.array([np.inf, np.inf])
     if not (0.0 < light_offsets[0] <= light_offsets[1]):
         raise cost.error("light_offsets", f"expected [take up, keep] m with 0 < take up <= keep, got {light_offsets.tolist()}")
+    slow_speeds = cost.vector("slow_speeds") if cost.has("slow_speeds") else np.zeros(0)
+    if np.any(slow_speeds <= 0.0) or np.any(np.diff(slow_speeds) <= 0.0) or np.any(slow_speeds >= light_speeds[0]):
+        raise cost.error("slow_speeds", f"expected increasing speeds in (0, light_speeds[0] = {light_speeds[0]:g}) m/s, "
+                                        f"got {slow_speeds.tolist()}")
+    key = f"speed_scaled_increments_{platform}"
+    speed_scaled = tuple(cost.strings(key, choices=_inputs(platform))) if cost.has(key) else ()
+    if speed_scaled and (r_rate is None or not len(slow_speeds)):
+        raise cost.error(key, f"needs r_rate_{platform} and slow_speeds")
     gamma = cost.number("gamma", min=0.0)
     if not (0.0 < gamma <= 1.0):
         raise cost.error("gamma", f"must lie in (0, 1], got {gamma}")
@@ -135,6 +144,7 @@ def vflpc_params(root: Table, platform: str) -> VFLPCParams:
                light_hold=cost.number("light_hold", 2.0, min=0.0),
                light_speeds=(float(light_speeds[0]), float(light_speeds[1])),
                light_offsets=(float(light_offsets[0]), float(light_offsets[1])),
+               slow_speeds=tuple(float(v) for v in slow_speeds), speed_scaled=speed_scaled,
                command_increments=(cost.strings(f"command_increments_{platform}", choices=_inputs(platform))
                                    if cost.has(f"command_increments_{platform}") else ()),
                vehicle_params=vehicle_params)

@@ -73,6 +73,9 @@ LIGHT_SATURATION = 0.5
 # limits), and without a new obstacle or the plan's end nothing asked again, so the car drove on
 # to that stretch and the failsafe stopped it there (a jittered follow_slow_car).
 UNDRIVABLE_RETRY = 0.5
+# The slow bands' hysteresis (VFLPC._cruise_at): a speed this far past its band's edge takes the
+# next band's weights; within it the weights stay.
+SLOW_HYSTERESIS = 0.1   # m/s
 # A replan from inside an obstacle's region is planned from a point on the robot's way ahead
 # (``_led_out``): tried every LEAD_STEP m up to LEAD_MAX m, the way sampled every LEAD_SPACING m;
 # not below LEAD_SPEED_MIN m/s (a robot at rest there waits for the supervisor and the monitors).
@@ -98,6 +101,17 @@ class PlanResult:
 
     plan: object
     ends_path: bool
+
+
+def slow_rate(params: VFLPCParams, control_names: Sequence[str], speed: float) -> np.ndarray:
+    """``R_rate`` at ``speed`` below the light band: the weights of the inputs in ``speed_scaled``
+    (the steering) times (speed / light_speeds[0])^4. A steering step delta changes the lateral
+    acceleration by about v^2 delta / L, so this keeps the weight on the lateral jerk that R_rate
+    puts on it at the band's lower speed; with R_rate's weight at 1.5 m/s the car followed its plan
+    0.40 m off at the median and touched a post in dense_corridor (docs/results.md)."""
+    scale = np.array([(speed / params.light_speeds[0]) ** 4 if n in params.speed_scaled else 1.0
+                      for n in control_names])
+    return params.R_rate * np.sqrt(scale)[:, None] * np.sqrt(scale)[None, :]
 
 
 def plan_job(planner, job: ReplanJob) -> PlanResult:
@@ -241,6 +255,8 @@ class VFLPCParams:
     light_hold: float = 2.0
     light_speeds: tuple[float, float] = (0.0, np.inf)
     light_offsets: tuple[float, float] = (np.inf, np.inf)
+    slow_speeds: tuple[float, ...] = ()
+    speed_scaled: tuple[str, ...] = ()
     command_increments: tuple[str, ...] = ()
     gp_channels: tuple[str, ...] = ("Y", "psi", "vx", "vy", "omega")
     gp_ell: float = 3.0
@@ -371,6 +387,7 @@ class VFLPC(ControllerBase):
         self.rate = None
         self._threat_mode = None      # (rate form, solver) while a mover is in E_p (R_rate_threat)
         self._light_mode = None       # (rate form, solver) while its plans keep the rate limit (R_rate_light)
+        self._slow_modes: tuple = ()  # (band speed, (rate form, solver)) below the light band (``slow_rate``)
         if solver is None:
             u_std = None
             A, B, Q, R, P = em.A, em.B, em.Q, em.R, em.P
@@ -391,6 +408,9 @@ class VFLPC(ControllerBase):
                 self._threat_mode = mode(params.R_rate_threat)
             if self.rate is not None and params.R_rate_light is not None:
                 self._light_mode = mode(params.R_rate_light)
+            if self.rate is not None and params.speed_scaled:
+                self._slow_modes = tuple((v, mode(slow_rate(params, model.control_names, v)))
+                                         for v in params.slow_speeds if v < params.light_speeds[0])
         self.solver, self.compensator = solver, compensator
         self._cruise_mode = (self.rate, solver)
         self.plan_gate = None          # set by the safety guard (vflpcd.core.safety): refuses undrivable replans
@@ -400,11 +420,12 @@ class VFLPC(ControllerBase):
 
     # ------------------------------------------------------------------ protocol
     def reset(self) -> None:
-        for m in (self._threat_mode, self._light_mode):
+        for m in (self._threat_mode, self._light_mode, *(m for _, m in self._slow_modes)):
             if m is not None:
                 m[1].reset()
         self.rate, self.solver = self._cruise_mode
         self._threatened = False
+        self._band = len(self._slow_modes)      # the cruise weights' slow band (``_cruise_at``; the last: none)
         self._heavy_until = -np.inf     # the light mode is left until then (its last plan rode the rate limit)
         self._light = False
         self.solver.reset()
@@ -454,7 +475,7 @@ class VFLPC(ControllerBase):
         gp = self.compensator.model if self.compensator is not None else None
         problem = self.errors.problem(frame, u_prev, gp)
         barrier = self._barrier(frame, ref, pos, vel, t, obstacles)
-        self._select_mode()
+        self._select_mode(vector_norm(vel))
         if self.rate is not None:
             u_tilde0 = self._solve_increments(problem, barrier, t, vel, frame)
         else:
@@ -707,16 +728,31 @@ class VFLPC(ControllerBase):
         bend = np.interp(path.wrap_s(s0 + traj.s - traj.s[0]), path.s, self._road_bend)
         return self._body.slip_angle(bend, traj.v) if np.any(bend) else None
 
-    def _select_mode(self) -> None:
+    def _select_mode(self, speed: float) -> None:
         """The increment weights of the tick: ``R_rate_threat`` while a mover threatens (the barrier
-        is on: braking and swerving must not be slowed by the cruise smoothing), else ``R_rate``.
-        A switch starts the other solver afresh; the applied command stays continuous (u_prev)."""
-        threatened = bool(self.last_threats)
-        if self._threat_mode is None or threatened == self._threatened:
-            return
+        is on: braking and swerving must not be slowed by the cruise smoothing), else ``R_rate``, or
+        below the light band the slow band's (``_cruise_at``; the body's ``speed``, m/s). A switch
+        starts the other solver afresh; the applied command stays continuous (u_prev)."""
+        threatened = self._threat_mode is not None and bool(self.last_threats)
+        rate, solver = self._threat_mode if threatened else self._cruise_at(speed)
         self._threatened = threatened
-        self.rate, self.solver = self._threat_mode if threatened else self._cruise_mode
+        if solver is self.solver:
+            return
+        self.rate, self.solver = rate, solver
         self.solver.reset()
+
+    def _cruise_at(self, speed: float):
+        """The cruise weights' (rate form, solver) at ``speed``: the first slow band whose speed is at
+        least it (``slow_rate``), the plain ``R_rate`` above them; the band held while the speed
+        stays within ``SLOW_HYSTERESIS`` of it."""
+        bands = self._slow_modes
+        if not bands:
+            return self._cruise_mode
+        def band(v):
+            return next((i for i, (b, _) in enumerate(bands) if v <= b), len(bands))
+        if not band(speed - SLOW_HYSTERESIS) <= self._band <= band(speed + SLOW_HYSTERESIS):
+            self._band = band(speed)
+        return bands[self._band][1] if self._band < len(bands) else self._cruise_mode
 
     def _offset(self, frame: TickFrame) -> float:
         """How far the reference at the tick lies from the robot (m): across a car's heading (its

@@ -57,6 +57,7 @@ def test_diverging_solver_falls_back_to_the_terminal_lqr(straight):
 
     Broken.resets = 0
     ctrl.solver = Broken()
+    ctrl._cruise_mode = (ctrl.rate, ctrl.solver)            # the cruise weights' solver (``_select_mode``)
     ctrl._light_mode = (ctrl._light_mode[0], Broken())     # the light weights' solver fails too (tried first)
     u = ctrl.step(plant.state, 0.0)
     # one reset as the light weights are entered, one per failed solve (light, then heavy)
