@@ -746,8 +746,8 @@ class VFLPC(ControllerBase):
         least it (``slow_rate``), the plain ``R_rate`` above them; the band held while the speed
         stays within ``SLOW_HYSTERESIS`` of it."""
         bands = self._slow_modes
-        if not bands:
-            return self._cruise_mode
+        if not bands or (self._band == len(bands) and speed - SLOW_HYSTERESIS > bands[-1][0]):
+            return self._cruise_mode                # above the bands (the common case: one comparison)
         def band(v):
             return next((i for i, (b, _) in enumerate(bands) if v <= b), len(bands))
         if not band(speed - SLOW_HYSTERESIS) <= self._band <= band(speed + SLOW_HYSTERESIS):
