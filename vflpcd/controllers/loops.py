@@ -193,12 +193,13 @@ def _scalars() -> bool:
     except ImportError:
         return False
     from vflpcd.core.guidance.active_set_kernel import dual_step, half_plane_gap, normal_dot
-    from vflpcd.core.guidance.integrate3d_kernel import _interval, _repulsive_unit, _unit3, piece_at
+    from vflpcd.core.guidance.integrate3d_kernel import _repulsive_unit, _unit3, piece_at
     from vflpcd.core.guidance.integrate_kernel import step_time
-    from vflpcd.core.guidance.primitives import cup_at, guiding_at, row_centre, superellipse_at, superellipsoid_at
+    from vflpcd.core.guidance.primitives import (cup_at, guiding_at, knot_interval, row_centre, superellipse_at,
+                                                 superellipsoid_at)
 
     for fn in (superellipse_at, row_centre, step_time, cup_at, guiding_at, dual_step, half_plane_gap, normal_dot,
-               superellipsoid_at, piece_at, _interval, _repulsive_unit, _unit3):
+               superellipsoid_at, piece_at, knot_interval, _repulsive_unit, _unit3):
         register_jitable(fn)
     return True
 

@@ -111,7 +111,13 @@ def slow_rate(params: VFLPCParams, control_names: Sequence[str], speed: float) -
     0.40 m off at the median and touched a post in dense_corridor (docs/results.md)."""
     scale = np.array([(speed / params.light_speeds[0]) ** 4 if n in params.speed_scaled else 1.0
                       for n in control_names])
-    return params.R_rate * np.sqrt(scale)[:, None] * np.sqrt(scale)[None, :]
+    return params.R_rate * np.sqrt(np.outer(scale, scale))
+
+
+def _band_of(bands, speed: float) -> int:
+    """The first of the slow ``bands`` ((band speed, mode), increasing) whose speed is at least
+    ``speed``; len(bands) above them all."""
+    return next((i for i, (b, _) in enumerate(bands) if speed <= b), len(bands))
 
 
 def plan_job(planner, job: ReplanJob) -> PlanResult:
@@ -475,9 +481,10 @@ class VFLPC(ControllerBase):
         gp = self.compensator.model if self.compensator is not None else None
         problem = self.errors.problem(frame, u_prev, gp)
         barrier = self._barrier(frame, ref, pos, vel, t, obstacles)
-        self._select_mode(vector_norm(vel))
+        speed = vector_norm(vel)
+        self._select_mode(speed)
         if self.rate is not None:
-            u_tilde0 = self._solve_increments(problem, barrier, t, vel, frame)
+            u_tilde0 = self._solve_increments(problem, barrier, t, speed, frame)
         else:
             u_tilde0 = self._solve(problem, barrier, self.errors.K_terminal)
         u = problem.u_ref[0] + u_tilde0
@@ -748,10 +755,8 @@ class VFLPC(ControllerBase):
         bands = self._slow_modes
         if not bands or (self._band == len(bands) and speed - SLOW_HYSTERESIS > bands[-1][0]):
             return self._cruise_mode                # above the bands (the common case: one comparison)
-        def band(v):
-            return next((i for i, (b, _) in enumerate(bands) if v <= b), len(bands))
-        if not band(speed - SLOW_HYSTERESIS) <= self._band <= band(speed + SLOW_HYSTERESIS):
-            self._band = band(speed)
+        if not _band_of(bands, speed - SLOW_HYSTERESIS) <= self._band <= _band_of(bands, speed + SLOW_HYSTERESIS):
+            self._band = _band_of(bands, speed)
         return bands[self._band][1] if self._band < len(bands) else self._cruise_mode
 
     def _offset(self, frame: TickFrame) -> float:
@@ -762,9 +767,9 @@ class VFLPC(ControllerBase):
         return vector_norm(frame.x_r[0, self._pos_index])
 
     def _solve_increments(self, problem: HorizonProblem, barrier: HorizonBarrier, t: float,
-                          velocity: np.ndarray, frame: TickFrame) -> np.ndarray:
+                          speed: float, frame: TickFrame) -> np.ndarray:
         """u~_0 from the increment form of ``problem`` (rate.py) in the tick's mode. Cruising with
-        ``R_rate_light`` given, at a speed (of ``velocity``, world) within ``light_speeds`` (where the
+        ``R_rate_light`` given, at a ``speed`` (the body's, m/s) within ``light_speeds`` (where the
         model's steering response is close to the vehicle's) and on the reference (``_offset`` of
         ``frame``, within the first of ``light_offsets`` to take the light weights up, within the second to
         keep them: they track tightly, and a car brought back from a swerve by them, 0.16 m off
@@ -781,7 +786,7 @@ class VFLPC(ControllerBase):
         oscillates behind the rate clip)."""
         lo, hi = self.params.light_speeds
         light = (self._light_mode is not None and not self._threatened and t >= self._heavy_until
-                 and lo <= vector_norm(velocity) <= hi
+                 and lo <= speed <= hi
                  and self._offset(frame) <= self.params.light_offsets[1 if self._light else 0])
         if light:
             rate, solver = self._light_mode

@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 
 from vflpcd.core.guidance.integrate_kernel import OUT_OF_STEPS, REACHED, VANISHED, step_time
-from vflpcd.core.guidance.primitives import cup_at, superellipsoid_at
+from vflpcd.core.guidance.primitives import cup_at, knot_interval, superellipsoid_at
 
 __all__ = ["REACHED", "OUT_OF_STEPS", "VANISHED", "steps3d_loop", "piece_at"]
 
@@ -43,18 +43,6 @@ def piece_at(pieces, j: int, i: int, h: float) -> float:
     for n in range(pieces.shape[2]):
         out = out * h + pieces[j, i, n]
     return out
-
-
-def _interval(knots, x: float) -> int:
-    """The piece holding x (clamped to the knots): ``bisect_right(knots, x) - 1`` within [0, m - 2]."""
-    lo, hi = 0, len(knots)
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if x < knots[mid]:
-            hi = mid
-        else:
-            lo = mid + 1
-    return min(max(lo - 1, 0), len(knots) - 2)
 
 
 def steps3d_loop(start, xyz, obstacles, gammas, frame, knots, pieces, params, step_times, out) -> int:
@@ -80,7 +68,7 @@ def steps3d_loop(start, xyz, obstacles, gammas, frame, knots, pieces, params, st
         qy = qx_ * r01 + qy_ * r11 + qz_ * r21
         qz = qx_ * r02 + qy_ * r12 + qz_ * r22
         xc = min(max(qx, x0), x1)
-        i = _interval(knots, xc)
+        i = knot_interval(knots, xc)
         h = xc - knots[i]
         f, df, g, dg = piece_at(pieces, 0, i, h), piece_at(pieces, 1, i, h), piece_at(pieces, 2, i, h), \
             piece_at(pieces, 3, i, h)
@@ -104,7 +92,7 @@ def steps3d_loop(start, xyz, obstacles, gammas, frame, knots, pieces, params, st
                 # chi_R_i^ with the side rule's gamma, against the path's tangent at xi_k's abscissa
                 rx, ry, rz = _repulsive_unit(row[16], gx, gy, gz, phi, k_r, row[17], row[18], row[19])
                 ta = min(max(qx_ * r00 + qy_ * r10 + qz_ * r20, x0), x1)
-                j = _interval(knots, ta)
+                j = knot_interval(knots, ta)
                 ht = ta - knots[j]
                 s1, s2 = piece_at(pieces, 1, j, ht), piece_at(pieces, 3, j, ht)
                 tx, ty, tz = r00 + r01 * s1 + r02 * s2, r10 + r11 * s1 + r12 * s2, r20 + r21 * s1 + r22 * s2

@@ -4,8 +4,8 @@ to compile: ``GuidanceField.path_unit`` of a ``GraphPath`` at every cell (xs[i],
 In the graph's local frame (origin o, rotation R: local = (p - o) R) the path is y' = f(x'), a
 cubic spline (breakpoints ``breaks`` (n + 1,), coefficients ``coefs`` (4, n), highest power first,
 as scipy's ``CubicSpline.c``), continued linearly beyond its ends; phi = y' - f(x'), grad phi =
-R (-f'(x'), 1), and chi_P = gamma_0 E grad phi - k_p phi grad phi (``primitives.guiding_at``, compiled
-with it by ``vflpcd.controllers.loops``), normalised (a zero vector stays zero). ``out`` (len(xs),
+R (-f'(x'), 1), and chi_P = gamma_0 E grad phi - k_p phi grad phi (``primitives.guiding_at``; the piece by
+``primitives.knot_interval``; both compiled with it by ``vflpcd.controllers.loops``), normalised (a zero vector stays zero). ``out`` (len(xs),
 len(ys), 2) is written.
 """
 
@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import math
 
-from vflpcd.core.guidance.primitives import guiding_at
+from vflpcd.core.guidance.primitives import guiding_at, knot_interval
 
 
 def fill_loop(xs, ys, origin, rot, breaks, coefs, gamma0, k_p, out):
     """chi_P^ at the cells of xs x ys into out."""
-    n = breaks.shape[0] - 1
-    x0, x1 = breaks[0], breaks[n]
+    x0, x1 = breaks[0], breaks[breaks.shape[0] - 1]
     for i in range(xs.shape[0]):
         px = xs[i] - origin[0]
         for j in range(ys.shape[0]):
@@ -27,15 +26,9 @@ def fill_loop(xs, ys, origin, rot, breaks, coefs, gamma0, k_p, out):
             qx = px * rot[0, 0] + py * rot[1, 0]
             qy = px * rot[0, 1] + py * rot[1, 1]
             xc = min(max(qx, x0), x1)
-            lo, hi = 0, n - 1                      # the piece k with breaks[k] <= xc (the last at x1)
-            while lo < hi:
-                mid = (lo + hi + 1) // 2
-                if breaks[mid] <= xc:
-                    lo = mid
-                else:
-                    hi = mid - 1
-            d = xc - breaks[lo]
-            c0, c1, c2, c3 = coefs[0, lo], coefs[1, lo], coefs[2, lo], coefs[3, lo]
+            k = knot_interval(breaks, xc)
+            d = xc - breaks[k]
+            c0, c1, c2, c3 = coefs[0, k], coefs[1, k], coefs[2, k], coefs[3, k]
             df = (3.0 * c0 * d + 2.0 * c1) * d + c2
             f = ((c0 * d + c1) * d + c2) * d + c3 + df * (qx - xc)
             gx = -df * rot[0, 0] + rot[0, 1]

@@ -83,6 +83,19 @@ def superellipsoid_at(x, y, z, cx, cy, cz, c, s, a0, a1, a2, p, q):
     return T ** (1.0 / q) - 1.0, h0 * c - h1 * s, h0 * s + h1 * c, h2
 
 
+def knot_interval(knots, x: float) -> int:
+    """The spline piece holding x (clamped to the knots (m,)): ``bisect_right(knots, x) - 1`` within
+    [0, m - 2], in plain ints (the compiled loops' form: the path grid's fill, the 3-D steps)."""
+    lo, hi = 0, len(knots)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if x < knots[mid]:
+            hi = mid
+        else:
+            lo = mid + 1
+    return min(max(lo - 1, 0), len(knots) - 2)
+
+
 def row_centre(rows, i: int, t: float) -> tuple[float, float]:
     """The centre at time t of obstacle i of ``rows`` (each an ``ObstacleImplicit.row``)."""
     return rows[i, 0] + rows[i, 2] * (t - rows[i, 4]), rows[i, 1] + rows[i, 3] * (t - rows[i, 4])

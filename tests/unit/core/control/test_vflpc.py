@@ -122,19 +122,27 @@ def test_a_failed_solve_goes_on_with_the_last_plan_before_the_terminal_lqr(strai
     assert ctrl.fallbacks == ctrl.N
 
 
-def _learning_run(scenario, settle: bool, steps: int = 60):
-    """Commands and GP sample counts of a learning VF-LPC driven on the plant, with ``settle`` called
-    after each command or left to the next step."""
-    ctrl = make_vflpc(scenario, compensation=True)
+FIT_AT = 40     # the step after which ``_learning_run`` fits the GP (every later sample is folded into it)
+
+
+def _learning_run(scenario, settle: bool, steps: int = 60, compensation: bool = True):
+    """Commands and GP sample counts of a VF-LPC driven on the plant, with ``settle`` called after
+    each command or left to the next step; a learning one's GP is fitted after step ``FIT_AT`` (its
+    pending sample settled first in both cases), so that the later commands use the samples."""
+    ctrl = make_vflpc(scenario, compensation=compensation)
     plant = make_plant(scenario, 0)
     commands, samples = [], []
     for k in range(steps):
-        before = ctrl.compensator.n_buffered
+        before = ctrl.compensator.n_buffered if compensation else 0
         u = ctrl.step(plant.state, k * 0.05)
-        samples.append((before, ctrl.compensator.n_buffered))
-        if settle:
-            ctrl.settle()
-            samples[-1] += (ctrl.compensator.n_buffered,)
+        if compensation:
+            samples.append((before, ctrl.compensator.n_buffered))
+            if settle:
+                ctrl.settle()
+                samples[-1] += (ctrl.compensator.n_buffered,)
+            if k == FIT_AT:
+                ctrl.settle()
+                assert ctrl.compensator.refit() is not None
         commands.append(u)
         plant.step(u, 0.05)
     return np.array(commands), samples
@@ -143,11 +151,15 @@ def _learning_run(scenario, settle: bool, steps: int = 60):
 def test_the_gp_sample_of_a_step_is_taken_after_its_command_by_settle_or_at_the_next_step(straight):
     """The command does not wait for the sample of the transition it saw: ``settle`` takes it after
     the command (one sample a step from the second on), and a caller that never settles gets the
-    same commands, the sample taken at the next step's start."""
+    same commands, the sample taken at the next step's start, before the step's problem: once the
+    GP is fitted each command depends on the samples folded into it (it differs from the
+    commands without a GP)."""
     settled, with_settle = _learning_run(straight, settle=True)
     unsettled, without = _learning_run(straight, settle=False)
+    plain, _ = _learning_run(straight, settle=True, compensation=False)
     assert all(step == before for before, step, _ in with_settle)                  # step itself adds none
     assert [after - step for _, step, after in with_settle] == [0] + [1] * (len(with_settle) - 1)
-    assert [step - before for before, step in without[2:]] == [1] * (len(without) - 2)   # the one before's
+    assert [step - before for before, step in without[FIT_AT + 2:]] == [1] * (len(without) - FIT_AT - 2)  # the one before's
     assert without[-1][1] == with_settle[-1][2] - 1                                 # the last one still pending
     np.testing.assert_array_equal(unsettled, settled)
+    assert np.all(settled[FIT_AT + 2:] != plain[FIT_AT + 2:])                      # the fitted GP steers them

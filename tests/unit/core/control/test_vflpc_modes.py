@@ -358,9 +358,9 @@ def test_light_weights_are_taken_up_on_the_reference_and_kept_near_it(straight):
     seen = []
     real = ctrl._solve_increments
 
-    def recorded(problem, barrier, t, velocity, frame):
+    def recorded(problem, barrier, t, speed, frame):
         was = ctrl._light
-        u = real(problem, barrier, t, velocity, frame)
+        u = real(problem, barrier, t, speed, frame)
         seen.append((ctrl._offset(frame), was, ctrl._light))
         return u
 
