@@ -43,9 +43,10 @@ def scheduled_problem_loop():
 @lru_cache(maxsize=1)
 def tick_loops():
     """The tick's loops (``tick_kernel``'s window and nominal linearisation, ``gp_kernel``'s correction
-    by the GP's mean) compiled and loaded (``_warm_tick_*``), as ``error_model.TickLoops``, or None
+    by the GP's mean, ``rate_kernel``'s increment fill) compiled and loaded (``_warm_tick_*``), as ``error_model.TickLoops``, or None
     without numba."""
     from vflpcd.core.control.error_model import TickLoops
+    from vflpcd.core.control.rate_kernel import increment_loop
     from vflpcd.core.control.tick_kernel import linearisation_loop, window_loop
     from vflpcd.core.dynamics.gp_kernel import corrected_next_loop
 
@@ -55,7 +56,8 @@ def tick_loops():
         return None
     return TickLoops(window=window,
                      linearisation=_compiled("tick_linearisation", linearisation_loop, _warm_tick_linearisation),
-                     correction=_compiled("tick_gp_correction", corrected_next_loop, _warm_tick_correction))
+                     correction=_compiled("tick_gp_correction", corrected_next_loop, _warm_tick_correction),
+                     increment=_compiled("tick_increment", increment_loop, _warm_tick_increment))
 
 
 @lru_cache(maxsize=1)
@@ -253,6 +255,18 @@ def _warm_tick_linearisation(loop) -> None:
     import numpy as np
 
     loop(np.ones((2, 3)), np.eye(3), np.ones((3, 1)), np.ones((1, 1)), 1, -np.ones(1), np.ones(1))
+
+
+def _warm_tick_increment(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``RateForm.increments`` passes: the error
+    model's c (a view of its next states' columns), its nominal B (read-only, broadcast along the
+    horizon) or a scheduled model's (contiguous), and the limits' read-only du_max."""
+    import numpy as np
+
+    c = np.zeros((2, 3))[:, :2]
+    for B in (np.broadcast_to(np.ones((2, 1)), (2, 2, 1)), np.ones((2, 2, 1))):
+        loop(c, B, np.zeros((2, 1)), np.zeros(2), np.zeros(1), np.ones(1), np.zeros(1, np.int64), np.zeros((2, 3)),
+             np.zeros(3), np.zeros((2, 1)), np.zeros((2, 1)))
 
 
 def _tiny_gp():

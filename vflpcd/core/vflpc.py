@@ -360,7 +360,6 @@ class VFLPC(ControllerBase):
         self._observe_every = max(1, int(round(every)))
         self.N = max(1, int(round(params.horizon_s / self.dt)))
         self._horizon_offsets = self.dt * np.arange(self.N + 1)     # tau dt, tau = 0 .. N
-        self._rate_arrays = tuple(np.zeros((self.N, model.n_u)) for _ in range(3))   # _rate_bounds' (in place)
         self._body = planner.body
         self._road_bend = None                    # the route's bend at its points, for _road_slip
         if self._body.slips:
@@ -395,10 +394,12 @@ class VFLPC(ControllerBase):
         self._light_mode = None       # (rate form, solver) while its plans keep the rate limit (R_rate_light)
         self._slow_modes: tuple = ()  # (band speed, (rate form, solver)) below the light band (``slow_rate``)
         if solver is None:
+            increment_loop = tick_loops.increment if tick_loops is not None else None
             u_std = None
             A, B, Q, R, P = em.A, em.B, em.Q, em.R, em.P
             if params.R_rate is not None:
-                self.rate = rf = RateForm.of(em.A, em.B, em.Q, em.R, params.R_rate, em.gamma, self._command)
+                self.rate = rf = RateForm.of(em.A, em.B, em.Q, em.R, params.R_rate, em.gamma, self._command,
+                                             increment_loop)
                 A, B, Q, R, P = rf.A, rf.B, rf.Q, rf.R, rf.P
                 span = limits.u_max - limits.u_min
                 u_std = 0.25 * np.where(np.isfinite(span), span, 1.0)
@@ -407,7 +408,7 @@ class VFLPC(ControllerBase):
             solver = EbRHRL(A, B, Q, R, P, em.gamma, feats, self.N, params.eta_a, params.i_max, params.tol,
                             loop=solve_loop)
             def mode(R_rate):
-                rf = RateForm.of(em.A, em.B, em.Q, em.R, R_rate, em.gamma, self._command)
+                rf = RateForm.of(em.A, em.B, em.Q, em.R, R_rate, em.gamma, self._command, increment_loop)
                 return rf, EbRHRL(rf.A, rf.B, rf.Q, rf.R, rf.P, em.gamma, feats, self.N, params.eta_a,
                                   params.i_max, params.tol, loop=solve_loop)
             if self.rate is not None and params.R_rate_threat is not None:
@@ -775,7 +776,7 @@ class VFLPC(ControllerBase):
         keep them: they track tightly, and a car brought back from a swerve by them, 0.16 m off
         the road behind a crossing pedestrian, swung across it for 5 s at +-0.15 rad before it
         settled), the light weights are tried first,
-        their increments bounded by the actuator's rate limit (``_rate_bounds``: the solver clips
+        their increments bounded by the actuator's rate limit (``RateForm.increments``: the solver clips
         its rollout and projects its targets onto them); their plan is kept unless it rides that
         limit at more than ``LIGHT_SATURATION`` of the horizon's steps (a manoeuvre the light
         weights ask too much of: following a slow car they weaved round it), else the tick is solved
@@ -792,8 +793,8 @@ class VFLPC(ControllerBase):
             rate, solver = self._light_mode
             if not self._light:
                 solver.reset()
-            increment = rate.problem(problem)
-            v = self._solve_with(solver, increment, barrier, self._rate_bounds(problem))
+            increment, bounds = rate.increments(problem)
+            v = self._solve_with(solver, increment, barrier, bounds)
             if v is not None and self.last_info.saturated <= LIGHT_SATURATION * self.N:
                 self._light = True
                 return rate.deviation(increment.x0, v[0])
@@ -803,20 +804,6 @@ class VFLPC(ControllerBase):
             self._light = False
         increment = self.rate.problem(problem)
         return self.rate.deviation(increment.x0, self._solve(increment, barrier, self.rate.K_terminal))
-
-    def _rate_bounds(self, problem: HorizonProblem) -> tuple[np.ndarray, np.ndarray]:
-        """Bounds (lo, hi) (N, n_u) on the increments v_tau of u~ that keep the command u = u_r + u~
-        within the rate limit du_max at every step: u moves by v_tau + (u_r,tau - u_r,tau-1)
-        (u~_{-1} = u_prev - u_r,0, so step 0 moves it by v_0), by v_tau alone for an input whose v is
-        the command's own increment (``command_increments``); open for an input without a limit."""
-        ref_step, lo, hi = self._rate_arrays      # written in place (no per-tick allocation)
-        np.subtract(problem.u_ref[1:], problem.u_ref[:-1], out=ref_step[1:])
-        for j in self.rate.commanded:
-            ref_step[:, j] = 0.0
-        du = self.limits.du_max
-        np.subtract(-du, ref_step, out=lo)
-        np.subtract(du, ref_step, out=hi)
-        return lo, hi
 
     def _barrier(self, frame: TickFrame, ref: np.ndarray, pos, vel, t: float, obstacles) -> HorizonBarrier:
         """The barrier of the movers in E_p (module docstring, step 4); ``ref``: the world reference

@@ -45,12 +45,14 @@ _KINDS = {"none": KIND_NONE, "position": KIND_POSITION, "planar": KIND_PLANAR}  
 
 @dataclass(frozen=True)
 class TickLoops:
-    """The tick's loops, compiled: ``tick_kernel``'s ``window_loop`` and ``linearisation_loop``, and
-    ``gp_kernel.corrected_next_loop`` (the GP's mean in c_tau)."""
+    """The tick's loops, compiled: ``tick_kernel``'s ``window_loop`` and ``linearisation_loop``,
+    ``gp_kernel.corrected_next_loop`` (the GP's mean in c_tau) and ``rate_kernel.increment_loop`` (the
+    increment form's fill, ``RateForm.increments``)."""
 
     window: Callable
     linearisation: Callable
     correction: Callable
+    increment: Callable | None = None
 
 
 @dataclass(frozen=True)

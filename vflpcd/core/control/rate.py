@@ -59,11 +59,13 @@ class RateForm:
     gamma: float
     commanded: tuple[int, ...]
     _pair: list = field(default_factory=lambda: [None, None, None], compare=False, repr=False)
+    loop: object = field(default=None, compare=False, repr=False)     # rate_kernel.increment_loop compiled, or None
     _blank: dict = field(default_factory=dict, compare=False, repr=False)     # N -> _Blank
+    _work: dict = field(default_factory=dict, compare=False, repr=False)      # N -> _Work
 
     @classmethod
     def of(cls, A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, R_rate: np.ndarray,
-           gamma: float, command: np.ndarray | None = None) -> "RateForm":
+           gamma: float, command: np.ndarray | None = None, loop=None) -> "RateForm":
         n, n_u = B.shape
         command = np.zeros(n_u, bool) if command is None else np.asarray(command, bool)
         if command.shape != (n_u,):
@@ -76,27 +78,38 @@ class RateForm:
         g = np.sqrt(gamma)
         P = sl.solve_discrete_are(g * Az, g * Bz, Qz, R_rate)
         K = np.linalg.solve(R_rate + gamma * Bz.T @ P @ Bz, gamma * Bz.T @ P @ Az)
-        return cls(n, n_u, Az, Bz, Qz, R_rate, P, K, float(gamma), tuple(int(j) for j in np.flatnonzero(command)))
+        return cls(n, n_u, Az, Bz, Qz, R_rate, P, K, float(gamma), tuple(int(j) for j in np.flatnonzero(command)),
+                   loop=loop)
 
     def problem(self, p: HorizonProblem) -> HorizonProblem:
         """The increment form of problem p (module docstring); its u_ref is the previous deviation
-        carried along (zeros: v has no reference) and its input bounds are open."""
-        N, n_u, n = p.N, self.n_u, self.n
+        carried along (zeros: v has no reference) and its input bounds are open (``increments``)."""
+        return self.increments(p)[0]
+
+    def increments(self, p: HorizonProblem) -> tuple[HorizonProblem, tuple[np.ndarray, np.ndarray]]:
+        """``problem(p)`` and the bounds (lo, hi) (N, n_u) on its increments v_tau that keep the
+        command u = u_r + u~ within p's rate limit du_max at every step: u moves by
+        v_tau + (u_r,tau - u_r,tau-1) (u~_{-1} = u_prev - u_r,0, so step 0 moves it by v_0), by v_tau
+        alone for an input whose v is the command's own increment; open for an input without a limit.
+        Its c, x0 and the bounds are the form's own arrays, rewritten by its next call (one
+        compiled fill, ``rate_kernel.increment_loop``, with ``loop``; numpy without), and the problem
+        is the same object while p's A, B and half-planes are the same arrays (the nominal
+        linearisation's): nothing is allocated at a tick."""
+        N, n = p.N, self.n
+        work = self._work.get(N) or self._work.setdefault(N, _Work.of(N, n, self.n_u, self.commanded))
+        if self.loop is not None:
+            self.loop(p.c, p.B, p.u_ref, p.x0, p.u_prev, p.du_max, work.commanded, work.c, work.x0, work.lo, work.hi)
+        else:
+            _increment_fill(p, self.commanded, work)
         A, B = self._augmented(p.A, p.B)
-        c = np.zeros((N, n + n_u))
-        c[:, :n] = p.c
-        for j in self.commanded:             # the reference control's steps s_tau (module docstring)
-            u_r = p.u_ref[:, j]
-            step = np.subtract(u_r[:-1], u_r[1:], out=c[1:, n + j])           # -s_tau, tau >= 1
-            c[1:, :n] += p.B[1:, :, j] * step[:, None]
-        x0 = np.empty(n + n_u)
-        x0[:n] = p.x0
-        np.subtract(p.u_prev, p.u_ref[0], out=x0[n:])
-        blank = self._blank.get(N) or self._blank.setdefault(N, _blank(N, n, n_u))
-        G = blank.G if p.G.shape == (N + 1, 0, n) else np.concatenate([p.G, np.zeros(p.G.shape[:2] + (n_u,))], axis=2)
-        return HorizonProblem(A=A, B=B, c=c, x0=x0, Q=self.Q, R=self.R, P=self.P, gamma=p.gamma,
-                              u_ref=blank.u_ref, u_min=blank.lower, u_max=blank.upper, du_max=blank.upper,
-                              u_prev=blank.u_prev, G=G, g=p.g)
+        blank = self._blank.get(N) or self._blank.setdefault(N, _blank(N, n, self.n_u))
+        G = blank.G if p.G.shape == (N + 1, 0, n) else np.concatenate([p.G, np.zeros(p.G.shape[:2] + (self.n_u,))], axis=2)
+        z = work.problem
+        if z is None or z.A is not A or z.B is not B or z.G is not G or z.g is not p.g or z.gamma != p.gamma:
+            z = work.problem = HorizonProblem(A=A, B=B, c=work.c, x0=work.x0, Q=self.Q, R=self.R, P=self.P,
+                                              gamma=p.gamma, u_ref=blank.u_ref, u_min=blank.lower,
+                                              u_max=blank.upper, du_max=blank.upper, u_prev=blank.u_prev, G=G, g=p.g)
+        return z, (work.lo, work.hi)
 
     def _augmented(self, A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """augment_pair(A, B), kept while the problem's A and B are the same arrays (the nominal
@@ -122,6 +135,44 @@ class _Blank:
     lower: np.ndarray
     upper: np.ndarray
     G: np.ndarray
+
+
+@dataclass
+class _Work:
+    """An increment problem's arrays rewritten at every tick (``RateForm.increments``): c (N, n + n_u),
+    x0 (n + n_u,), the bounds lo, hi (N, n_u), the commanded inputs' indices, and the problem
+    built on them (kept while its input's A, B and half-planes are the same arrays)."""
+
+    c: np.ndarray
+    x0: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    commanded: np.ndarray
+    problem: HorizonProblem | None = None
+
+    @classmethod
+    def of(cls, N: int, n: int, n_u: int, commanded: tuple[int, ...]) -> "_Work":
+        return cls(np.zeros((N, n + n_u)), np.zeros(n + n_u), np.zeros((N, n_u)), np.zeros((N, n_u)),
+                   np.array(commanded, dtype=np.int64))
+
+
+def _increment_fill(p: HorizonProblem, commanded: tuple[int, ...], work: _Work) -> None:
+    """``rate_kernel.increment_loop`` in numpy (the same numbers)."""
+    n = p.n
+    c = work.c
+    c[:, :n] = p.c
+    c[:, n:] = 0.0
+    ref_step = np.zeros_like(work.lo)
+    np.subtract(p.u_ref[1:], p.u_ref[:-1], out=ref_step[1:])
+    for j in commanded:             # the reference control's steps s_tau (module docstring)
+        u_r = p.u_ref[:, j]
+        step = np.subtract(u_r[:-1], u_r[1:], out=c[1:, n + j])           # -s_tau, tau >= 1
+        c[1:, :n] += p.B[1:, :, j] * step[:, None]
+        ref_step[:, j] = 0.0
+    work.x0[:n] = p.x0
+    np.subtract(p.u_prev, p.u_ref[0], out=work.x0[n:])
+    np.subtract(-p.du_max, ref_step, out=work.lo)
+    np.subtract(p.du_max, ref_step, out=work.hi)
 
 
 def _blank(N: int, n: int, n_u: int) -> _Blank:

@@ -94,3 +94,52 @@ def test_eb_rhrl_on_the_increment_form_is_its_finite_horizon_lqr():
     v_lqr = -finite_horizon_lqr(rf.A, rf.B, rf.Q, rf.R, rf.P, N, 1.0)[0] @ z.x0
     assert np.linalg.norm(v[0] - v_lqr) / np.linalg.norm(v_lqr) < 1e-3
     assert info.converged
+
+
+@pytest.mark.parametrize("command", [(False, False), (True, False), (True, True)])
+def test_the_increment_bounds_keep_the_command_within_its_rate_limit(command):
+    """Increments at the bounds move the command u = u_r + u~ by exactly -du_max / +du_max at every
+    step (u_{-1} = u_prev), whichever inputs are the command's own increments; an input without a
+    limit is open."""
+    rng = np.random.default_rng(4)
+    p = _problem(rng)
+    du = np.array([0.3, np.inf])
+    p = HorizonProblem(**{**p.__dict__, "du_max": du})
+    rf = RateForm.of(p.A[0], p.B[0], p.Q, p.R, np.diag([1.0, 50.0]), p.gamma, command=np.array(command))
+    z, (lo, hi) = rf.increments(p)
+    assert np.all(np.isinf(lo[:, 1])) and np.all(np.isinf(hi[:, 1]))
+    for v0, sign in ((lo[:, 0], -1.0), (hi[:, 0], 1.0)):
+        v = np.zeros((N, n_u))
+        v[:, 0] = v0
+        u = p.u_ref + z.rollout(v)[1:, n:]
+        np.testing.assert_allclose(np.diff(np.concatenate([[p.u_prev[0]], u[:, 0]])), sign * du[0], atol=1e-12)
+
+
+def test_the_compiled_increment_fill_is_the_numpy_one_and_allocates_no_problem():
+    """``rate_kernel.increment_loop`` compiled gives ``RateForm.increments``' numpy fill (c, x0 and the
+    bounds) to 1e-12, on a view of the error model's c and a broadcast B as the tick passes them; the
+    increment problem is the same object at the next tick while A, B and the (absent) half-planes
+    are the same arrays."""
+    from vflpcd.controllers.loops import tick_loops
+
+    loops = tick_loops()
+    if loops is None:
+        pytest.skip("numba is not installed")
+    rng = np.random.default_rng(5)
+    for command in ((False, False), (True, False), (False, True)):
+        p = _problem(rng)
+        wide = np.zeros((N, n + 1))
+        wide[:, :n] = p.c
+        B = np.broadcast_to(p.B[0], (N, n, n_u))
+        p = HorizonProblem(**{**p.__dict__, "c": wide[:, :n], "B": B, "A": np.broadcast_to(p.A[0], (N, n, n)),
+                              "du_max": np.array([0.2, np.inf]), "G": np.zeros((N + 1, 0, n)),
+                              "g": np.zeros((N + 1, 0))})
+        forms = [RateForm.of(p.A[0], p.B[0], p.Q, p.R, np.diag([1.0, 50.0]), p.gamma, command=np.array(command),
+                             loop=loop) for loop in (None, loops.increment)]
+        (zn, bn), (zc, bc) = (f.increments(p) for f in forms)
+        for a, b in ((zn.c, zc.c), (zn.x0, zc.x0), (bn[0], bc[0]), (bn[1], bc[1])):
+            np.testing.assert_allclose(b, a, rtol=0, atol=1e-12)
+        assert not np.allclose(zc.c[1:], zc.c[1:] * 0)
+        again = HorizonProblem(**{**p.__dict__, "x0": p.x0 + 1.0})
+        z2, _ = forms[1].increments(again)
+        assert z2 is zc and np.allclose(zc.x0[:n], p.x0 + 1.0)
