@@ -87,10 +87,13 @@ def test_the_path_loop_is_compiled_once_and_warmed_for_the_types_the_path_passes
 
     loops.path_loop.cache_clear()
     loop = loops.path_loop()
-    assert loop is not None and loops.path_loop() is loop and loop.__name__ == "nearest_segment"
+    assert loop is not None and loops.path_loop() is loop and loop.__name__ == "nearest_arc_length"
     assert len(loop.signatures) == 1
-    loop(np.array([0.5, 0.2]), np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([[1.0, 0.0]]), np.ones(1),
-         np.arange(0, 1))
+    from vflpcd.core.path import ReferencePath
+
+    path = ReferencePath.arc([0.0, 0.0], 20.0, 0.0, 2 * np.pi)
+    path.arc_length_of(np.array([0.5, 0.2]), 3.0, loop=loop)
+    path.arc_length_of(np.array([0.5, 0.2, 1.0])[:2], None, loop=loop)
     assert len(loop.signatures) == 1
 
 

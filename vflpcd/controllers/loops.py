@@ -4,7 +4,7 @@ Core stays pure (numpy and scipy only, no files): it writes a loop as plain Pyth
 (``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.control.scheduled_kernel.problem_loop``,
 ``vflpcd.core.control.tick_kernel``'s ``window_loop`` and ``linearisation_loop``,
 ``vflpcd.core.dynamics.gp_kernel``'s ``add_sample_loop``, ``corrected_next_loop`` and ``ald_delta_loop``,
-``vflpcd.core.path_kernel.nearest_segment``,
+``vflpcd.core.path_kernel.nearest_arc_length``,
 and the guidance's ``active_set_kernel.solve_loop``, ``integrate_kernel.step_loop``,
 ``path_grid_kernel.fill_loop`` and ``half_plane_kernel``'s ``half_planes_loop`` and ``clear_loop``) and takes the compiled function as an argument. This
 module compiles each once per process, with numba's on-disk cache (beside the source, or numba's
@@ -82,10 +82,10 @@ def ald_loop():
 
 @lru_cache(maxsize=1)
 def path_loop():
-    """``path_kernel.nearest_segment`` compiled and loaded (``_warm_path``), or None without numba."""
-    from vflpcd.core.path_kernel import nearest_segment
+    """``path_kernel.nearest_arc_length`` compiled and loaded (``_warm_path``), or None without numba."""
+    from vflpcd.core.path_kernel import nearest_arc_length
 
-    return _compiled("path", nearest_segment, _warm_path)
+    return _compiled("path", nearest_arc_length, _warm_path)
 
 
 @lru_cache(maxsize=1)
@@ -314,7 +314,7 @@ def _warm_path(loop) -> None:
     """Compile (or load) the loop now, for the argument types ``ReferencePath.arc_length_of`` passes."""
     import numpy as np
 
-    loop(np.zeros(2), np.zeros((2, 2)), np.ones((1, 2)), np.ones(1), np.zeros(1, np.int64))
+    loop(np.zeros(2), np.zeros((2, 2)), np.array([0.0, 1.0]), np.ones((1, 2)), np.ones(1), -1.0, 2.0, False, False)
 
 
 def _warm_active_set(loop) -> None:

@@ -63,7 +63,6 @@ class ReferencePath:
         self.curvature = self._curvature()
         self._seg_vec = np.diff(pts, axis=0)
         self._seg_len2 = seg ** 2
-        self._seg_index = np.arange(len(seg))       # the compiled search's candidates are slices of it
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -204,17 +203,15 @@ class ReferencePath:
     def arc_length_of(self, p, s_hint: float | None = None, back: float = 10.0, ahead: float = 30.0,
                       loop=None) -> float:
         """The arc length s of ``project(p, s_hint, back, ahead)`` alone (no tangent, heading or lateral
-        error). ``loop``: ``path_kernel.nearest_segment`` compiled (``vflpcd.controllers.loops``), which
-        searches the stretch (the same numbers on a planar path, to 1e-12 on a 3-D one); None: the
-        numpy search."""
+        error). ``loop``: ``path_kernel.nearest_arc_length`` compiled (``vflpcd.controllers.loops``), which
+        picks and searches the stretch (the same numbers on a planar path, to 1e-12 on a 3-D one); None:
+        the numpy search."""
         p = np.asarray(p, dtype=float)
         if loop is None:
             return self._nearest(p, s_hint, back, ahead)[0]
-        idx = self._searched(s_hint, back, ahead)
-        if isinstance(idx, slice):
-            idx = self._seg_index[idx]
-        i, w = loop(p, self.points, self._seg_vec, self._seg_len2, idx)
-        return float(self.s[i] + w * np.sqrt(self._seg_len2[i]))
+        everything = s_hint is None
+        lo, span = (0.0, 0.0) if everything else (s_hint - back, back + ahead)
+        return float(loop(p, self.points, self.s, self._seg_vec, self._seg_len2, lo, span, self.closed, everything))
 
     def _searched(self, s_hint: float | None, back: float, ahead: float) -> slice | np.ndarray:
         """The segments that ``project`` searches: all without s_hint, else those overlapping

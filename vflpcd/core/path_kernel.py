@@ -1,6 +1,7 @@
 """The nearest-segment search of ``path.ReferencePath`` as one plain loop to compile.
 
-For each candidate segment i (first vertex a = points[i], direction v = seg_vec[i]) the foot
+The candidate segments are those of ``ReferencePath._searched`` (the same binary searches on the
+arc lengths, the seam of a closed path included), scanned in ascending order. For each segment i (first vertex a = points[i], direction v = seg_vec[i]) the foot
 parameter w = clip((p - a) . v / |v|^2, 0, 1) and the squared distance |p - (a + w v)|^2, in the
 order of the numpy path's operations; the first segment of least distance wins (np.argmin's
 choice; a NaN distance wins at once, as np.argmin takes the first NaN). A loop compiler (numba's
@@ -14,27 +15,62 @@ same distance either may be taken (their feet then lie within a rounding of each
 
 from __future__ import annotations
 
+import math
 
-def nearest_segment(p, points, seg_vec, seg_len2, idx):
-    """The nearest of the segments idx (K,) int to p (d,): (its index i, its foot parameter w)."""
+import numpy as np
+
+
+def nearest_arc_length(p, points, s, seg_vec, seg_len2, lo, span, closed, everything):
+    """The arc length of the point nearest to p (d,) on the segments that ``ReferencePath._searched``
+    picks for the window [lo, lo + span] (all of them with ``everything``): found by the same binary
+    searches, as up to two ascending runs of segment indices, and scanned in that order."""
+    n = seg_vec.shape[0]
+    a0, a1, b0, b1 = 0, n, 0, 0
+    if not everything:
+        L = s[n]
+        if not closed:
+            a0 = np.searchsorted(s[1:], lo, side="left")
+            a1 = np.searchsorted(s[:-1], lo + span, side="right")
+            if a1 <= a0:
+                a0 = n - 1 if lo > 0 else 0
+                a1 = a0 + 1
+        elif span < L:
+            lo = lo % L
+            a, b = lo - 1e-9, lo + span + 1e-9
+            i0 = np.searchsorted(s[1:], max(a, 0.0), side="left")
+            i1 = np.searchsorted(s[:-1], min(b, L), side="right")
+            if b > L:                           # across the seam: the path's start too
+                j = min(i0, np.searchsorted(s[:-1], b - L, side="right"))
+                if j < i0:
+                    a0, a1, b0, b1 = 0, j, i0, i1
+                else:
+                    a0, a1 = 0, i1
+            elif a < 0.0:                       # across the seam: the path's end too
+                a0, a1, b0, b1 = i0, i1, max(i1, np.searchsorted(s[1:], a + L, side="left")), n
+            else:
+                a0, a1 = i0, i1
+            if max(a1 - a0, 0) + max(b1 - b0, 0) == 0:
+                a0 = n - 1 if lo > 0 else 0
+                a1, b0, b1 = a0 + 1, 0, 0
     d = p.shape[0]
     best_i, best_w, best_d2 = -1, 0.0, 0.0
-    for k in range(idx.shape[0]):
-        i = idx[k]
-        dot = 0.0
-        for j in range(d):
-            dot += (p[j] - points[i, j]) * seg_vec[i, j]
-        w = dot / seg_len2[i]
-        if w < 0.0:
-            w = 0.0
-        if w > 1.0:
-            w = 1.0
-        d2 = 0.0
-        for j in range(d):
-            e = p[j] - (points[i, j] + w * seg_vec[i, j])
-            d2 += e * e
-        if d2 != d2:                    # NaN
-            return i, w
-        if best_i < 0 or d2 < best_d2:
-            best_i, best_w, best_d2 = i, w, d2
-    return best_i, best_w
+    for r in range(2):
+        start, stop = (a0, a1) if r == 0 else (b0, b1)
+        for i in range(start, stop):
+            dot = 0.0
+            for j in range(d):
+                dot += (p[j] - points[i, j]) * seg_vec[i, j]
+            w = dot / seg_len2[i]
+            if w < 0.0:
+                w = 0.0
+            if w > 1.0:
+                w = 1.0
+            d2 = 0.0
+            for j in range(d):
+                e = p[j] - (points[i, j] + w * seg_vec[i, j])
+                d2 += e * e
+            if d2 != d2:                    # NaN
+                return s[i] + w * math.sqrt(seg_len2[i])
+            if best_i < 0 or d2 < best_d2:
+                best_i, best_w, best_d2 = i, w, d2
+    return s[best_i] + best_w * math.sqrt(seg_len2[best_i])

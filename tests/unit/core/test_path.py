@@ -69,11 +69,12 @@ def test_arc_length_of_is_the_projections_arc_length(closed):
 
 @pytest.mark.parametrize("closed", [False, True])
 def test_the_nearest_segment_loop_gives_the_numpy_searchs_arc_length(closed):
-    """path_kernel.nearest_segment, run as Python and compiled, finds the numpy search's arc length
-    on planar paths (the same numbers: within 1e-12 required, equal found)."""
-    from vflpcd.core.path_kernel import nearest_segment
+    """path_kernel.nearest_arc_length, run as Python and compiled, finds the numpy search's arc length
+    on planar paths (the same numbers: within 1e-12 required, equal found), with windows across a
+    closed path's seam, beyond an open path's ends and longer than the path."""
+    from vflpcd.core.path_kernel import nearest_arc_length
 
-    loops = [nearest_segment]
+    loops = [nearest_arc_length]
     if importlib.util.find_spec("numba") is not None:
         from vflpcd.controllers.loops import path_loop
 
@@ -82,20 +83,21 @@ def test_the_nearest_segment_loop_gives_the_numpy_searchs_arc_length(closed):
     wp = np.cumsum(rng.uniform(2.0, 6.0, size=(12, 2)) * [1.0, 0.5], axis=0) * [1.0, rng.choice([-1, 1])]
     path = ReferencePath.from_waypoints(wp if not closed else np.vstack([wp, wp[::-1][1:-1] + [0.0, 8.0]]),
                                         closed=closed)
-    for _ in range(60):
-        s_hint = rng.choice([None, rng.uniform(0.0, path.length)])
+    for _ in range(200):
+        s_hint = rng.choice([None, rng.uniform(-20.0, path.length + 20.0), rng.choice([0.0, path.length])])
+        back, ahead = rng.choice([(10.0, 30.0), (1.0, 2.0), (0.0, 0.0), (path.length, 5.0)])
         p = path.point_at(rng.uniform(0.0, path.length)) + rng.normal(size=2) * rng.choice([0.01, 1.0, 10.0])
-        expected = path.arc_length_of(p, s_hint)
+        expected = path.arc_length_of(p, s_hint, back, ahead)
         for loop in loops:
-            got = path.arc_length_of(p, s_hint, loop=loop)
+            got = path.arc_length_of(p, s_hint, back, ahead, loop=loop)
             assert abs(got - expected) <= 1e-12 and got == expected
-    assert path.arc_length_of(path.points[3], None, loop=nearest_segment) == path.project(path.points[3]).s
+    assert path.arc_length_of(path.points[3], None, loop=nearest_arc_length) == path.project(path.points[3]).s
 
 
 def test_on_a_3d_path_the_nearest_segment_loop_gives_the_numpy_searchs_arc_length_to_1e_12():
-    from vflpcd.core.path_kernel import nearest_segment
+    from vflpcd.core.path_kernel import nearest_arc_length
 
-    loops = [nearest_segment]
+    loops = [nearest_arc_length]
     if importlib.util.find_spec("numba") is not None:
         from vflpcd.controllers.loops import path_loop
 
