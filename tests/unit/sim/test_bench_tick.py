@@ -25,6 +25,21 @@ def test_the_phases_of_every_tick_add_up_to_its_total(line_scenario):
     assert np.all(np.array(ticks["solve"]) > 0.0) and np.median(ticks["solve"]) < np.median(ticks["total"])
 
 
+def test_the_error_model_phase_times_every_modes_increment_form(line_scenario):
+    """The increment form (``RateForm.increments``, which ``problem`` calls) of every weight mode a
+    tick may solve with (cruise, light, threat, the slow bands) is timed in the error model's phase,
+    not left in the rest."""
+    s = line_scenario("tick_modes", length=30.0)
+    ctrl = make_controller("vflpc", s)
+    forms = [m[0] for m in (ctrl._cruise_mode, ctrl._light_mode, ctrl._threat_mode, *(m for _, m in ctrl._slow_modes))
+             if m is not None]
+    assert len(forms) >= 3
+    ticks = timed_phases(ctrl)
+    assert all(hasattr(f.increments, "__wrapped__") for f in forms)
+    run_closed_loop(s, ctrl)
+    assert np.all(np.array(ticks["error model"]) > 0.0)
+
+
 def test_the_scaling_road_has_its_posts_beside_the_lane_and_its_walkers_crossing(tmp_path):
     f = tmp_path / "scaling.toml"
     f.write_text(scaling_scenario(40, 8))
