@@ -59,6 +59,7 @@ from vflpcd.core.dynamics.ald import sparsify
 
 
 PHI_FLOOR = 1e-2  # floor of ||Phi||^2 in the normalised steps: far from the dictionary, no blow-up
+BOUNDS_CROSSED = "input bounds with lo > hi"
 
 
 class KernelFeatures:
@@ -240,10 +241,10 @@ class EbRHRL:
                              f"does not match the solver's {self.N}, {self.n}, {self.n_u}")
         if bounds is not None:
             bounds = (self._bound(bounds[0]), self._bound(bounds[1]))
-            if np.greater(bounds[0], bounds[1]).any():
-                raise ValueError("input bounds with lo > hi")
         if self.loop is not None:
-            return self._solve_compiled(problem, barrier, bounds)
+            return self._solve_compiled(problem, barrier, bounds)      # the loop checks lo <= hi
+        if bounds is not None and np.greater(bounds[0], bounds[1]).any():
+            raise ValueError(BOUNDS_CROSSED)
         R2, gamma = 2.0 * self.R, self.gamma
         BT = problem.B.transpose(0, 2, 1)                                # (N, n_u, n)
         info = SolveInfo(0, False, np.inf, np.inf)
@@ -297,4 +298,6 @@ class EbRHRL:
             self.closed_loop(problem), c(problem.B), c(problem.c), c(problem.x0), self.K, self.Q, self._R2,
             self.P, self.M_inv, self.gamma, self.W_a, self.W_c, f._a, f._b, f._h, pos, p_ref,
             x_p, normal, mu, length, self.eta_a, self.i_max, self.tol, PHI_FLOOR, bounds is not None, lo, hi)
+        if iterations < 0:
+            raise ValueError(BOUNDS_CROSSED)
         return target, SolveInfo(int(iterations), bool(eps_a <= self.tol), float(eps_a), float(eps_c), int(saturated))

@@ -7,7 +7,8 @@ them into one machine-code function; with the barrier's gradient inline
 error, constant slope below PI_MIN). ``solve_loop`` updates the actor and critic weights in
 place and returns (targets (N, n_u), iterations, max epsilon_a, max epsilon_c, the steps whose target
 the input bounds moved); ``bounded`` with (lo, hi) (N, n_u) clips the rollout's controls and
-projects the targets (``EbRHRL.solve``'s ``bounds``).
+projects the targets (``EbRHRL.solve``'s ``bounds``), and returns at once with iterations -1 when
+a bound has lo > hi (``EbRHRL`` raises it).
 
 Run as Python it is slow; EbRHRL without a compiled loop runs its vectorised numpy path instead,
 and the two give the same numbers to 1e-12 (tests/unit/core/control/test_ebrhrl.py).
@@ -38,6 +39,11 @@ def solve_loop(A_cl, B, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh,
     eta, eps_a_prev, eps_a, eps_c = eta_a, np.inf, np.inf, np.inf
     iterations = 0
     saturated = 0
+    if bounded:                               # bounds with lo > hi: no iteration (iterations -1)
+        for k in range(N):
+            for v in range(n_u):
+                if lo[k, v] > hi[k, v]:
+                    return target, -1, eps_a, eps_c, 0
     for it in range(1, i_max + 1):
         iterations = it
         saturated = 0

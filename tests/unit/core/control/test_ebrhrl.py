@@ -187,12 +187,23 @@ def test_bounded_solves_keep_the_bounds_and_count_the_projected_steps(seed):
     assert info.saturated == int(np.count_nonzero(np.any((u == lo) | (u == hi), axis=1)))
 
 
-def test_bounds_with_lo_above_hi_are_an_error():
+@pytest.mark.parametrize("compiled", [False, True])
+def test_bounds_with_lo_above_hi_are_an_error(compiled):
+    """Checked by the numpy path, and by the compiled loop before its first iteration (the weights
+    untouched), for a single crossed bound too."""
+    if compiled and LOOP is None:
+        pytest.skip("numba is not installed")
     rng, A, B, Q, R = _system(0)
     P = sl.solve_discrete_are(A, B, Q, R)
-    solver = EbRHRL(A, B, Q, R, P, 1.0, _features(rng), N)
+    solver = EbRHRL(A, B, Q, R, P, 1.0, _features(rng), N, loop=LOOP if compiled else None)
     with pytest.raises(ValueError, match="lo > hi"):
         solver.solve(_problem(A, B, Q, R, P, np.ones(n)), bounds=(np.ones(n_u), np.zeros(n_u)))
+    lo, hi = -np.ones((N, n_u)), np.ones((N, n_u))
+    lo[N - 1, n_u - 1] = 2.0
+    W_a = solver.W_a.copy()
+    with pytest.raises(ValueError, match="lo > hi"):
+        solver.solve(_problem(A, B, Q, R, P, np.ones(n)), bounds=(lo, hi))
+    np.testing.assert_array_equal(solver.W_a, W_a)
 
 
 @needs_numba
