@@ -64,11 +64,11 @@ class Limits:
     du_max: np.ndarray
 
 
-@dataclass(frozen=True)
+@dataclass(eq=False)
 class TickFrame:
     """What the controller needs back: the window origin (the world state, (n_x,)), the lifted
     robot state U (n_K,) and reference U_r (N + 1, n_K), and the reference in the window frame
-    x_r (N + 1, n_x)."""
+    x_r (N + 1, n_x). Read-only by convention (built once a tick, as ``HorizonProblem``)."""
 
     origin: np.ndarray
     U: np.ndarray

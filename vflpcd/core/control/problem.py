@@ -32,9 +32,11 @@ from dataclasses import dataclass
 import numpy as np
 
 
-@dataclass(frozen=True)
+@dataclass(eq=False)
 class HorizonProblem:
     """One tick's horizon problem; N steps, error dimension n, n_u controls, m half-planes.
+    Read-only by convention (built once a tick, not frozen: a frozen dataclass's constructor costs
+    twice as much, and arrays have no equality; ``dataclasses.replace`` makes a changed copy).
 
     A (N, n, n), B (N, n, n_u), c (N, n), x0 (n,), Q (n, n), R (n_u, n_u), P (n, n),
     gamma (scalar in (0, 1]), u_ref (N, n_u), u_min / u_max (n_u,), du_max (n_u,) per step
