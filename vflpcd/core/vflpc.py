@@ -368,13 +368,16 @@ class VFLPC(ControllerBase):
         self.dim = planner.dim
         names, layout = model.state_names, PoseLayout.of(model.state_names)
         self._pos_index = np.array(layout.position)
+        self._pos_slice = (slice(layout.position[0], layout.position[-1] + 1)      # a view where they run on
+                           if list(layout.position) == list(range(layout.position[0], layout.position[-1] + 1))
+                           else self._pos_index)
         d = planner.dim                 # the barrier without a threat: zero (its reference positions are not used)
         self._no_threat = HorizonBarrier(self._pos_index, np.zeros((self.N + 1, d)), np.zeros((0, self.N + 1, d)),
                                          np.zeros((0, self.N + 1, d)), np.zeros(0))
         if layout.kind == "planar":                     # heading, body velocities
-            self._vel_index = np.array([layout.heading, names.index("vx"), names.index("vy")])
+            self._vel_index = (layout.heading, names.index("vx"), names.index("vy"))
         else:                                           # world velocities
-            self._vel_index = np.array([names.index(n) for n in ("vx", "vy", "vz")[: self.dim]])
+            self._vel_index = tuple(names.index(n) for n in ("vx", "vy", "vz")[: self.dim])
         span = limits.u_max - limits.u_min        # a first command beyond this bound is a divergence (_solve_with)
         self._divergence_bound = (params.divergence * np.where(np.isfinite(span), span, 1e6)).tolist()
         if model.scheduled and model.schedule != "vx":
@@ -614,15 +617,20 @@ class VFLPC(ControllerBase):
     def _inputs(self, state: np.ndarray, obstacles: Sequence[ObstacleState]):
         """Checked model state, obstacles, position and velocity; remembers them for a forced replan."""
         state = np.asarray(state, float)
-        if state.shape != (len(self.state_names),) or not all(map(math.isfinite, state.tolist())):
+        values = state.tolist() if state.shape == (len(self.state_names),) else None
+        if values is None or not all(map(math.isfinite, values)):
             raise ValueError(f"state must be {len(self.state_names)} finite numbers {self.state_names}, got {state!r}")
-        state = state[self._select] if self._select is not None else state.copy()
+        if self._select is not None:
+            state = state[self._select]
+            values = state.tolist()
+        else:
+            state = state.copy()
         obstacles = tuple(obstacles)
         if obstacles:
             _check_obstacles(obstacles, self.dim)
-        pos, vel = self._position(state), self._velocity(state)
+        pos, vel = state[self._pos_slice], self._velocity(values)
         self._s = self.planner.path.arc_length_of(pos, self._s, loop=self._path_loop)
-        heading = float(state[self.errors.layout.heading]) if self.dim == 2 else None
+        heading = values[self.errors.layout.heading] if self.dim == 2 else None
         self._last_inputs = (pos, vel, heading, obstacles)
         return state, obstacles, pos, vel
 
@@ -637,16 +645,14 @@ class VFLPC(ControllerBase):
             return psi
         return float(np.arctan2(vel[1], vel[0]))
 
-    def _position(self, state: np.ndarray) -> np.ndarray:
-        return state[self._pos_index]
-
-    def _velocity(self, state: np.ndarray) -> np.ndarray:
+    def _velocity(self, state) -> np.ndarray:
+        """The world velocity (d,) of a model state (n_x,) (an array, or its values as a list)."""
         if self.errors.layout.kind == "planar":
             h, i, j = self._vel_index
             psi, vx, vy = float(state[h]), float(state[i]), float(state[j])
             c, s = math.cos(psi), math.sin(psi)
             return np.array([vx * c - vy * s, vx * s + vy * c])
-        return state[self._vel_index]
+        return np.array([float(state[i]) for i in self._vel_index])
 
     def _changed(self, obstacles: Sequence[ObstacleState]) -> bool:
         """Whether the obstacle picture differs (an obstacle appeared or went, or its velocity changed
