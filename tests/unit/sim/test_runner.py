@@ -142,3 +142,37 @@ def test_vflpc_passes_a_goal_on_a_road_that_goes_on_and_slows_for_one_that_is_a_
         assert speed[-1] < 0.7 * s.v_desired and rec.applied[ok, 0].min() < -1.0
     else:               # the same cruise to the goal, nothing braked for
         assert speed[-1] == pytest.approx(s.v_desired, abs=0.1) and rec.applied[ok, 0].min() > -0.3
+
+
+class FreezeWatcher(ControllerBase):
+    """Records how many objects the garbage collector holds frozen at each step."""
+
+    name = "freeze_watcher"
+
+    def __init__(self):
+        self.frozen = []
+
+    def reset(self):
+        pass
+
+    def step(self, state, t, obstacles=()):
+        import gc
+
+        self.frozen.append(gc.get_freeze_count())
+        return np.zeros(2)
+
+
+def test_the_objects_alive_before_a_run_are_kept_out_of_its_collections_and_given_back(line_scenario):
+    """A bench's records of earlier runs are frozen while a run ticks (no full collection over them
+    inside a timed tick or replan), and the collector is as it was after the run, also when the
+    controller raises."""
+    import gc
+
+    held = [{"row": i} for i in range(2000)]            # an earlier run's records (tracked objects)
+    before = gc.get_freeze_count()
+    watcher = FreezeWatcher()
+    run_closed_loop(corridor(line_scenario), watcher)
+    assert len(watcher.frozen) > 10 and min(watcher.frozen) >= before + len(held)
+    assert gc.get_freeze_count() == before
+    run_closed_loop(corridor(line_scenario), RaisingController(), supervised=False)
+    assert gc.get_freeze_count() == before and gc.isenabled()
