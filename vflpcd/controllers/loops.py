@@ -47,7 +47,7 @@ def tick_loops():
     without numba."""
     from vflpcd.core.control.error_model import TickLoops
     from vflpcd.core.control.rate_kernel import increment_loop
-    from vflpcd.core.control.tick_kernel import linearisation_loop, window_loop
+    from vflpcd.core.control.tick_kernel import command_loop, linearisation_loop, window_loop
     from vflpcd.core.dynamics.gp_kernel import corrected_next_loop
 
     _algebra()
@@ -57,7 +57,8 @@ def tick_loops():
     return TickLoops(window=window,
                      linearisation=_compiled("tick_linearisation", linearisation_loop, _warm_tick_linearisation),
                      correction=_compiled("tick_gp_correction", corrected_next_loop, _warm_tick_correction),
-                     increment=_compiled("tick_increment", increment_loop, _warm_tick_increment))
+                     increment=_compiled("tick_increment", increment_loop, _warm_tick_increment),
+                     command=_compiled("tick_command", command_loop, _warm_tick_command))
 
 
 @lru_cache(maxsize=1)
@@ -267,6 +268,13 @@ def _warm_tick_increment(loop) -> None:
     for B in (np.broadcast_to(np.ones((2, 1)), (2, 2, 1)), np.ones((2, 2, 1))):
         loop(c, B, np.zeros((2, 1)), np.zeros(2), np.zeros(1), np.ones(1), np.zeros(1, np.int64), np.zeros((2, 3)),
              np.zeros(3), np.zeros((2, 1)), np.zeros((2, 1)))
+
+
+def _warm_tick_command(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``VFLPC._clipped_command`` passes."""
+    import numpy as np
+
+    loop(np.zeros(1), np.zeros(1), -np.ones(1), np.ones(1), np.zeros(1), np.ones(1))
 
 
 def _tiny_gp():

@@ -344,6 +344,7 @@ class VFLPC(ControllerBase):
         ``problem_loop``: the horizon of a scheduled model compiled (``ErrorModel``'s ``problem_loop``);
         ``tick_loops``: the tick's window and nominal linearisation compiled (``ErrorModel``'s)."""
         self._path_loop = path_loop
+        self._command_loop = tick_loops.command if tick_loops is not None else None
         self.state_names = tuple(state_names) if state_names is not None else tuple(model.state_names)
         missing = [n for n in model.state_names if n not in self.state_names]
         if missing:
@@ -491,9 +492,7 @@ class VFLPC(ControllerBase):
             u_tilde0 = self._solve_increments(problem, barrier, t, speed, frame)
         else:
             u_tilde0 = self._solve(problem, barrier, self.errors.K_terminal)
-        u = problem.u_ref[0] + u_tilde0
-        u = np.minimum(np.maximum(u, self.limits.u_min), self.limits.u_max)            # magnitude limits
-        u = np.minimum(np.maximum(u, u_prev - self.limits.du_max), u_prev + self.limits.du_max)   # rate limits
+        u = self._clipped_command(problem.u_ref[0], u_tilde0, u_prev)
         self.solver.shift()
         self._u_prev = u
         if observe_now:
@@ -501,6 +500,15 @@ class VFLPC(ControllerBase):
                 self._sample = (self._last, frame)
             self._last = (frame, u)
         return u
+
+    def _clipped_command(self, u_ref0: np.ndarray, u_tilde0: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
+        """u = u_r,0 + u~_0 within the magnitude limits, then within the rate limit of u_prev
+        (``tick_kernel.command_loop`` compiled, the same numbers)."""
+        lim = self.limits
+        if self._command_loop is not None:
+            return self._command_loop(u_ref0, u_tilde0, lim.u_min, lim.u_max, u_prev, lim.du_max)
+        u = np.minimum(np.maximum(u_ref0 + u_tilde0, lim.u_min), lim.u_max)            # magnitude limits
+        return np.minimum(np.maximum(u, u_prev - lim.du_max), u_prev + lim.du_max)     # rate limits
 
     def settle(self) -> None:
         """Offer the transition the last step saw (the previous sampled lifted state, the command

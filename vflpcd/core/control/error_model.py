@@ -46,13 +46,15 @@ _KINDS = {"none": KIND_NONE, "position": KIND_POSITION, "planar": KIND_PLANAR}  
 @dataclass(frozen=True)
 class TickLoops:
     """The tick's loops, compiled: ``tick_kernel``'s ``window_loop`` and ``linearisation_loop``,
-    ``gp_kernel.corrected_next_loop`` (the GP's mean in c_tau) and ``rate_kernel.increment_loop`` (the
-    increment form's fill, ``RateForm.increments``)."""
+    ``gp_kernel.corrected_next_loop`` (the GP's mean in c_tau), ``rate_kernel.increment_loop`` (the
+    increment form's fill, ``RateForm.increments``) and ``tick_kernel.command_loop`` (the command
+    clipped into the limits, ``VFLPC._clipped_command``)."""
 
     window: Callable
     linearisation: Callable
     correction: Callable
     increment: Callable | None = None
+    command: Callable | None = None
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,10 @@ numbers to 1e-12, tests/unit/core/control/test_tick_kernel.py):
   ((x - x_mean) / x_std, ``KoopmanModel.normalise_state``);
 * ``linearisation_loop``: the nominal linearisation (``ErrorModel._linearisation``):
   u_r,tau = pinv(B_x) (x_r,tau+1 - [A Upsilon_r,tau]_{1..n_x}) clipped into [u_min, u_max], and
-  next_tau = A Upsilon_r,tau + B u_r,tau.
+  next_tau = A Upsilon_r,tau + B u_r,tau;
+* ``command_loop``: the tick's command (``VFLPC._clipped_command``), u = u_r,0 + u~_0 clipped into the
+  magnitude limits and then within du_max of the previous command, with numpy's maximum and
+  minimum (a NaN stays NaN).
 
 A loop compiler (numba's ``njit``: ``vflpcd.controllers.loops``) turns each into one machine-code
 function, in place of some twenty numpy calls whose fixed cost dominated these small arrays; run
@@ -85,3 +88,17 @@ def linearisation_loop(U_r, A, B, B_x_pinv, n_x, u_min, u_max):
                 acc += u_r[k, a] * B[i, a]
             nxt[k, i] += acc
     return u_r, nxt
+
+
+def command_loop(u_ref0, u_tilde0, u_min, u_max, u_prev, du_max):
+    n_u = u_ref0.shape[0]
+    u = np.empty(n_u)
+    for j in range(n_u):
+        v = u_ref0[j] + u_tilde0[j]
+        for lo, hi in ((u_min[j], u_max[j]), (u_prev[j] - du_max[j], u_prev[j] + du_max[j])):
+            if not (v >= lo or v != v):
+                v = lo
+            if not (v <= hi or v != v):
+                v = hi
+        u[j] = v
+    return u

@@ -7,7 +7,7 @@ import pytest
 
 from vflpcd.config.koopman_file import load_koopman
 from vflpcd.core.control.error_model import ErrorModel, Limits, TickLoops
-from vflpcd.core.control.tick_kernel import linearisation_loop, window_loop
+from vflpcd.core.control.tick_kernel import command_loop, linearisation_loop, window_loop
 from vflpcd.core.dynamics.gp_kernel import corrected_next_loop
 from vflpcd.core.dynamics.lifted import LiftedLinearModel
 from vflpcd.base.paths import config_dir
@@ -86,3 +86,28 @@ def test_the_loops_give_the_numpy_paths_frame_and_problem(compiled, name, wrap, 
         assert np.any(np.abs(p.u_ref) >= 0.3)               # some reference controls are clipped
         for field in ("A", "B", "c", "x0", "u_ref"):
             np.testing.assert_allclose(getattr(q, field), getattr(p, field), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("run", ["python", "compiled"])
+def test_the_command_loop_clips_as_numpy_does(run):
+    """``command_loop`` (run as Python and compiled) gives VF-LPC's numpy clip exactly: u_r,0 + u~_0
+    into the magnitude limits, then within du_max of the previous command; an input without a rate
+    limit (inf) is clipped by its magnitude alone, and a NaN stays NaN."""
+    if run == "compiled":
+        from vflpcd.controllers.loops import tick_loops
+
+        loops = tick_loops()
+        if loops is None:
+            pytest.skip("numba is not installed")
+        loop = loops.command
+    else:
+        loop = command_loop
+    rng = np.random.default_rng(7)
+    u_min, u_max, du = np.array([-6.0, -0.5, -1.0]), np.array([3.0, 0.5, 1.0]), np.array([0.3, 0.03, np.inf])
+    for _ in range(300):
+        u_ref0, u_tilde0, u_prev = rng.normal(size=3) * 2.0, rng.normal(size=3) * 2.0, rng.normal(size=3)
+        if rng.uniform() < 0.1:
+            u_tilde0[rng.integers(3)] = np.nan
+        expected = np.minimum(np.maximum(u_ref0 + u_tilde0, u_min), u_max)
+        expected = np.minimum(np.maximum(expected, u_prev - du), u_prev + du)
+        np.testing.assert_array_equal(loop(u_ref0, u_tilde0, u_min, u_max, u_prev, du), expected)
