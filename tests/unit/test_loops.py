@@ -54,8 +54,8 @@ def test_the_loop_is_loaded_before_the_first_tick_for_the_types_the_solver_passe
 
 def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
     """A run of VF-LPC with the online GP (its samples tested and folded in, its window, linearisation,
-    GP correction, increment form and command clip compiled), and a refit's model coming back from a
-    worker, add no signature to the warmed loops: none compiles in a tick."""
+    GP correction, increment form, command clip and reference rows compiled), and a refit's model
+    coming back from a worker, add no signature to the warmed loops: none compiles in a tick."""
     import dataclasses
     import pickle
 
@@ -66,9 +66,10 @@ def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
     from vflpcd.controllers import make_controller
 
     gp, tick, ald = loops.gp_add_loop(), loops.tick_loops(), loops.ald_loop()
-    compiled = (gp, tick.window, tick.linearisation, tick.correction, tick.increment, tick.command, ald)
+    compiled = (gp, tick.window, tick.linearisation, tick.correction, tick.increment, tick.command, tick.reference,
+                ald)
     before = tuple(len(loop.signatures) for loop in compiled)
-    assert before == (1, 1, 1, 1, 2, 1, 1)      # the increment form: a nominal B and a scheduled one
+    assert before == (1, 1, 1, 1, 2, 1, 1, 1)   # the increment form: a nominal B and a scheduled one
     scenario = dataclasses.replace(load_scenario("racing_track"), t_max=6.0)
     ctrl = make_controller("vflpc_ml", scenario)
     run_closed_loop(scenario, ctrl, 0)
@@ -79,6 +80,7 @@ def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
     U = np.zeros((ctrl.N + 1, ctrl.model.n_K))
     ctrl.errors.comp.corrected_next(U[1:], U[:-1], np.zeros((ctrl.N, ctrl.model.n_u)), back, tick.correction)
     assert ctrl.rate.loop is tick.increment and ctrl._command_loop is tick.command
+    assert ctrl._horizon._loop is tick.reference
     assert tuple(len(loop.signatures) for loop in compiled) == before
 
 

@@ -46,6 +46,7 @@ def tick_loops():
     by the GP's mean, ``rate_kernel``'s increment fill) compiled and loaded (``_warm_tick_*``), as ``error_model.TickLoops``, or None
     without numba."""
     from vflpcd.core.control.error_model import TickLoops
+    from vflpcd.core.control.horizon_reference import strided_rows
     from vflpcd.core.control.rate_kernel import increment_loop
     from vflpcd.core.control.tick_kernel import command_loop, linearisation_loop, window_loop
     from vflpcd.core.dynamics.gp_kernel import corrected_next_loop
@@ -58,7 +59,8 @@ def tick_loops():
                      linearisation=_compiled("tick_linearisation", linearisation_loop, _warm_tick_linearisation),
                      correction=_compiled("tick_gp_correction", corrected_next_loop, _warm_tick_correction),
                      increment=_compiled("tick_increment", increment_loop, _warm_tick_increment),
-                     command=_compiled("tick_command", command_loop, _warm_tick_command))
+                     command=_compiled("tick_command", command_loop, _warm_tick_command),
+                     reference=_compiled("tick_reference", strided_rows, _warm_tick_reference))
 
 
 @lru_cache(maxsize=1)
@@ -275,6 +277,14 @@ def _warm_tick_command(loop) -> None:
     import numpy as np
 
     loop(np.zeros(1), np.zeros(1), -np.ones(1), np.ones(1), np.zeros(1), np.ones(1))
+
+
+def _warm_tick_reference(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``HorizonReference.at`` passes."""
+    import numpy as np
+
+    for w in (0.0, 0.5):
+        loop(np.zeros((4, 2)), 1, 1, w, np.empty((2, 2)))
 
 
 def _tiny_gp():

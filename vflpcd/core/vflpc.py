@@ -345,6 +345,7 @@ class VFLPC(ControllerBase):
         ``tick_loops``: the tick's window and nominal linearisation compiled (``ErrorModel``'s)."""
         self._path_loop = path_loop
         self._command_loop = tick_loops.command if tick_loops is not None else None
+        self._reference_loop = tick_loops.reference if tick_loops is not None else None
         self.state_names = tuple(state_names) if state_names is not None else tuple(model.state_names)
         missing = [n for n in model.state_names if n not in self.state_names]
         if missing:
@@ -731,7 +732,7 @@ class VFLPC(ControllerBase):
             if name in cols:
                 rows[:, j] = cols[name]
         stopped = np.array([n in ("vx", "vy", "vz", "omega") for n in names])
-        return HorizonReference(traj.t, rows, stopped, self.dt, self.N)
+        return HorizonReference(traj.t, rows, stopped, self.dt, self.N, self._reference_loop)
 
     def _road_slip(self, plan) -> np.ndarray | None:
         """The car's steady slip angle beta (rad, ``Body.slip_angle``) at each point of ``plan``'s

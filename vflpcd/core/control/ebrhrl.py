@@ -162,8 +162,8 @@ class EbRHRL:
 
     def shift(self) -> None:
         """Receding horizon: step tau + 1's weights become step tau's (the last is kept)."""
-        self.W_a[:-1] = self.W_a[1:].copy()
-        self.W_c[:-1] = self.W_c[1:].copy()
+        self.W_a[:-1] = self.W_a[1:]           # numpy copies overlapping operands as if apart
+        self.W_c[:-1] = self.W_c[1:]
 
     def rollout(self, problem: HorizonProblem, closed: np.ndarray | None = None, bounds=None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

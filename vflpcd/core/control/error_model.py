@@ -47,14 +47,16 @@ _KINDS = {"none": KIND_NONE, "position": KIND_POSITION, "planar": KIND_PLANAR}  
 class TickLoops:
     """The tick's loops, compiled: ``tick_kernel``'s ``window_loop`` and ``linearisation_loop``,
     ``gp_kernel.corrected_next_loop`` (the GP's mean in c_tau), ``rate_kernel.increment_loop`` (the
-    increment form's fill, ``RateForm.increments``) and ``tick_kernel.command_loop`` (the command
-    clipped into the limits, ``VFLPC._clipped_command``)."""
+    increment form's fill, ``RateForm.increments``), ``tick_kernel.command_loop`` (the command
+    clipped into the limits, ``VFLPC._clipped_command``) and ``horizon_reference.strided_rows`` (the
+    horizon's reference rows, ``HorizonReference.at``)."""
 
     window: Callable
     linearisation: Callable
     correction: Callable
     increment: Callable | None = None
     command: Callable | None = None
+    reference: Callable | None = None
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,8 @@ table's rows are the reference states in the model's state order, computed once 
 end (position and heading kept, the velocity columns zero), so a horizon point within a row of the
 end is read between the two. A trajectory that is not sampled so
 (times not uniform, or dt not a multiple of their step) is read by ``np.interp`` per column, the
-same rows and the same standing end (a plan of a single point too).
+same rows and the same standing end (a plan of a single point too). ``loop``: ``strided_rows``
+compiled (``vflpcd.controllers.loops``), the same numbers in one call.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ class HorizonReference:
     the columns that are zero once the plan has ended (velocities); ``dt`` the horizon step, N its
     steps (module docstring)."""
 
-    def __init__(self, t: np.ndarray, rows: np.ndarray, stopped: np.ndarray, dt: float, N: int) -> None:
+    def __init__(self, t: np.ndarray, rows: np.ndarray, stopped: np.ndarray, dt: float, N: int, loop=None) -> None:
         t = np.asarray(t, float)
         rows = np.asarray(rows, float)
         if t.ndim != 1 or len(t) < 1 or rows.shape[0] != len(t):
@@ -46,6 +47,7 @@ class HorizonReference:
         self._last = len(t) - 1
         self._out = np.empty((self.N + 1, rows.shape[1]))
         self._gap = np.empty_like(self._out)
+        self._loop = loop
 
     @staticmethod
     def _grid_stride(t: np.ndarray, dt: float) -> int | None:
@@ -75,6 +77,9 @@ class HorizonReference:
         else:
             i = math.floor(x)
             w = x - i
+        if self._loop is not None:            # the same numbers, compiled
+            self._loop(self._rows, i, m, w, self._out)
+            return self._out
         stop = i + m * self.N + 1
         a = self._rows[i:stop:m]
         if w == 0.0:
@@ -92,3 +97,14 @@ class HorizonReference:
         for j in range(rows.shape[1]):
             self._out[:, j] = np.interp(times, self._t, rows[: self._last + 1, j], right=standing[j])
         return self._out
+
+
+def strided_rows(rows, i, m, w, out):
+    """``HorizonReference.at`` on the grid as a loop to compile: out[tau] = rows[i + m tau] + w
+    (rows[i + m tau + 1] - rows[i + m tau]) in numpy's order of operations ((b - a) w + a), rows[i +
+    m tau] itself where w = 0."""
+    for k in range(out.shape[0]):
+        r = i + m * k
+        for c in range(out.shape[1]):
+            a = rows[r, c]
+            out[k, c] = a if w == 0.0 else (rows[r + 1, c] - a) * w + a

@@ -88,6 +88,17 @@ def test_with_the_barrier_it_reaches_the_optimum_of_the_barrier_cost():
     assert total(u.ravel()) <= total(best.ravel()) + 1e-8
 
 
+def test_shift_moves_each_steps_weights_one_step_earlier_and_keeps_the_last():
+    rng, A, B, Q, R = _system(2)
+    solver = EbRHRL(A, B, Q, R, sl.solve_discrete_are(A, B, Q, R), 1.0, _features(rng), N)
+    solver.W_a[:] = rng.normal(size=solver.W_a.shape)
+    solver.W_c[:] = rng.normal(size=solver.W_c.shape)
+    W_a, W_c = solver.W_a.copy(), solver.W_c.copy()
+    solver.shift()
+    np.testing.assert_array_equal(solver.W_a, np.concatenate([W_a[1:], W_a[-1:]]))
+    np.testing.assert_array_equal(solver.W_c, np.concatenate([W_c[1:], W_c[-1:]]))
+
+
 def test_warm_start_after_shift_starts_near_the_solution():
     rng, A, B, Q, R = _system(1)
     P = sl.solve_discrete_are(A, B, Q, R)

@@ -65,3 +65,26 @@ def test_times_that_are_not_a_grid_of_the_step_are_interpolated_per_column(times
 def test_rows_and_times_must_match():
     with pytest.raises(ValueError, match="one row per time"):
         HorizonReference(np.arange(5.0), np.zeros((4, 2)), np.zeros(2, bool), DT, N)
+
+
+@pytest.mark.parametrize("run", ["python", "compiled"])
+@pytest.mark.parametrize("h", [DT, DT / 5])
+def test_the_strided_rows_loop_gives_the_numpy_rows(run, h):
+    """``strided_rows`` (run as Python and compiled) reads the same rows as the numpy path, exactly: on
+    the plan's grid, off it, before the plan and past its end."""
+    from vflpcd.core.control.horizon_reference import strided_rows
+
+    loop = strided_rows
+    if run == "compiled":
+        from vflpcd.controllers.loops import tick_loops
+
+        loops = tick_loops()
+        if loops is None:
+            pytest.skip("numba is not installed")
+        loop = loops.reference
+    t_plan, cols = _plan(h, seed=3)
+    plain = HorizonReference(t_plan, cols, STOPPED, DT, N)
+    fast = HorizonReference(t_plan, cols, STOPPED, DT, N, loop)
+    times = np.concatenate([t_plan[::7], np.linspace(t_plan[0] - 1.0, t_plan[-1] + 1.0, 53)])
+    for t in times:
+        np.testing.assert_array_equal(fast.at(t), plain.at(t))
