@@ -88,6 +88,7 @@ def path_loop():
     """``path_kernel.nearest_arc_length`` compiled and loaded (``_warm_path``), or None without numba."""
     from vflpcd.core.path_kernel import nearest_arc_length
 
+    _path_window()
     return _compiled("path", nearest_arc_length, _warm_path)
 
 
@@ -177,15 +178,18 @@ def compile_all() -> dict[str, bool]:
 def _algebra() -> bool:
     """Register ``loop_algebra``'s functions, which the tick's, the GP's and the scheduled model's
     loops call, with numba; False without numba."""
-    try:
-        from numba.extending import register_jitable
-    except ImportError:
-        return False
     from vflpcd.core.loop_algebra import matvec, row_sq_distance
 
-    register_jitable(matvec)
-    register_jitable(row_sq_distance)
-    return True
+    return _jitable(matvec, row_sq_distance)
+
+
+@lru_cache(maxsize=1)
+def _path_window() -> bool:
+    """Register ``path_kernel.window_runs``, which the path projection's loop calls, with numba;
+    False without numba."""
+    from vflpcd.core.path_kernel import window_runs
+
+    return _jitable(window_runs)
 
 
 @lru_cache(maxsize=1)
@@ -193,18 +197,24 @@ def _scalars() -> bool:
     """Register the scalar functions that the guidance's loops call (``primitives``',
     ``integrate_kernel.step_time`` and ``active_set_kernel``'s ``dual_step``, ``half_plane_gap``,
     ``normal_dot``) with numba, so that they compile with the loops; False without numba."""
-    try:
-        from numba.extending import register_jitable
-    except ImportError:
-        return False
     from vflpcd.core.guidance.active_set_kernel import dual_step, half_plane_gap, normal_dot
     from vflpcd.core.guidance.integrate3d_kernel import _repulsive_unit, _unit3, piece_at
     from vflpcd.core.guidance.integrate_kernel import step_time
     from vflpcd.core.guidance.primitives import (cup_at, guiding_at, knot_interval, row_centre, superellipse_at,
                                                  superellipsoid_at)
 
-    for fn in (superellipse_at, row_centre, step_time, cup_at, guiding_at, dual_step, half_plane_gap, normal_dot,
-               superellipsoid_at, piece_at, knot_interval, _repulsive_unit, _unit3):
+    return _jitable(superellipse_at, row_centre, step_time, cup_at, guiding_at, dual_step, half_plane_gap,
+                    normal_dot, superellipsoid_at, piece_at, knot_interval, _repulsive_unit, _unit3)
+
+
+def _jitable(*fns) -> bool:
+    """Register plain functions that compiled loops call with numba (``register_jitable``), once per
+    process (the callers are cached); False without numba."""
+    try:
+        from numba.extending import register_jitable
+    except ImportError:
+        return False
+    for fn in fns:
         register_jitable(fn)
     return True
 

@@ -14,6 +14,7 @@ from scipy.interpolate import CubicSpline
 
 from vflpcd.core.angles import wrap_angle
 from vflpcd.core.norms import row_norms
+from vflpcd.core.path_kernel import window_runs
 
 
 @dataclass(frozen=True)
@@ -218,32 +219,12 @@ class ReferencePath:
         [s_hint - back, s_hint + ahead] (a slice on an open path, indices on a closed one)."""
         if s_hint is None:
             return slice(0, len(self._seg_vec))
-        lo, span = s_hint - back, back + ahead
-        if not self.closed:                   # s is sorted
-            i0 = int(self.s[1:].searchsorted(lo, side="left"))
-            i1 = int(self.s[:-1].searchsorted(lo + span, side="right"))
-            if i1 <= i0:
-                i0 = len(self._seg_vec) - 1 if lo > 0 else 0
-                i1 = i0 + 1
-            return slice(i0, i1)
-        if span >= self.length:
-            return np.arange(len(self._seg_vec))
-        starts, ends = self.s[:-1], self.s[1:]
-        L, lo = self.length, lo % self.length
-        a, b = lo - 1e-9, lo + span + 1e-9   # the window modulo L (a segment touching an end within rounding counts)
-        i0 = int(np.searchsorted(ends, max(a, 0.0), side="left"))      # the first segment ending at or after a
-        i1 = int(np.searchsorted(starts, min(b, L), side="right"))     # past the last one starting by b
-        if b > L:                             # across the seam: the path's start too
-            i0, head = min(i0, int(np.searchsorted(starts, b - L, side="right"))), i0
-            idx = np.concatenate([np.arange(i0), np.arange(head, i1)]) if i0 < head else np.arange(i1)
-        elif a < 0.0:                         # across the seam: the path's end too
-            tail = max(i1, int(np.searchsorted(ends, a + L, side="left")))
-            idx = np.concatenate([np.arange(i0, i1), np.arange(tail, len(starts))])
-        else:
-            idx = np.arange(i0, i1)
-        if idx.size == 0:
-            idx = np.array([len(self._seg_vec) - 1 if lo > 0 else 0])
-        return idx
+        a0, a1, b0, b1 = (int(i) for i in window_runs(self.s, s_hint - back, back + ahead, self.closed))
+        if not self.closed:
+            return slice(a0, a1)
+        if b1 <= b0:
+            return np.arange(a0, a1)
+        return np.concatenate([np.arange(a0, a1), np.arange(b0, b1)])
 
     def _nearest(self, p: np.ndarray, s_hint: float | None, back: float, ahead: float
                  ) -> tuple[float, np.ndarray, float]:

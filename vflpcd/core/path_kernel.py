@@ -1,7 +1,7 @@
 """The nearest-segment search of ``path.ReferencePath`` as one plain loop to compile.
 
-The candidate segments are those of ``ReferencePath._searched`` (the same binary searches on the
-arc lengths, the seam of a closed path included), scanned in ascending order. For each segment i (first vertex a = points[i], direction v = seg_vec[i]) the foot
+The candidate segments are those of ``window_runs`` (which ``ReferencePath._searched`` uses too: the
+binary searches on the arc lengths, the seam of a closed path included), scanned in ascending order. For each segment i (first vertex a = points[i], direction v = seg_vec[i]) the foot
 parameter w = clip((p - a) . v / |v|^2, 0, 1) and the squared distance |p - (a + w v)|^2, in the
 order of the numpy path's operations; the first segment of least distance wins (np.argmin's
 choice; a NaN distance wins at once, as np.argmin takes the first NaN). A loop compiler (numba's
@@ -20,38 +20,46 @@ import math
 import numpy as np
 
 
-def nearest_arc_length(p, points, s, seg_vec, seg_len2, lo, span, closed, everything):
-    """The arc length of the point nearest to p (d,) on the segments that ``ReferencePath._searched``
-    picks for the window [lo, lo + span] (all of them with ``everything``): found by the same binary
-    searches, as up to two ascending runs of segment indices, and scanned in that order."""
-    n = seg_vec.shape[0]
+def window_runs(s, lo, span, closed):
+    """The segments of a path with vertex arc lengths s (n + 1,) that overlap the window [lo, lo +
+    span] (``ReferencePath._searched``), as up to two ascending runs [a0, a1), [b0, b1) (an empty
+    run has stop <= start): on an open path those overlapping it, else its first or last segment;
+    on a closed one the window taken modulo its length, across the seam too (a segment touching an
+    end within rounding counts), all of them where it is as long as the path."""
+    n = s.shape[0] - 1
+    L = s[n]
     a0, a1, b0, b1 = 0, n, 0, 0
-    if not everything:
-        L = s[n]
-        if not closed:
-            a0 = np.searchsorted(s[1:], lo, side="left")
-            a1 = np.searchsorted(s[:-1], lo + span, side="right")
-            if a1 <= a0:
-                a0 = n - 1 if lo > 0 else 0
-                a1 = a0 + 1
-        elif span < L:
-            lo = lo % L
-            a, b = lo - 1e-9, lo + span + 1e-9
-            i0 = np.searchsorted(s[1:], max(a, 0.0), side="left")
-            i1 = np.searchsorted(s[:-1], min(b, L), side="right")
-            if b > L:                           # across the seam: the path's start too
-                j = min(i0, np.searchsorted(s[:-1], b - L, side="right"))
-                if j < i0:
-                    a0, a1, b0, b1 = 0, j, i0, i1
-                else:
-                    a0, a1 = 0, i1
-            elif a < 0.0:                       # across the seam: the path's end too
-                a0, a1, b0, b1 = i0, i1, max(i1, np.searchsorted(s[1:], a + L, side="left")), n
+    if not closed:                              # s is sorted
+        a0 = np.searchsorted(s[1:], lo, side="left")
+        a1 = np.searchsorted(s[:-1], lo + span, side="right")
+        if a1 <= a0:
+            a0 = n - 1 if lo > 0 else 0
+            a1 = a0 + 1
+    elif span < L:
+        lo = lo % L
+        a, b = lo - 1e-9, lo + span + 1e-9
+        i0 = np.searchsorted(s[1:], max(a, 0.0), side="left")        # the first segment ending at or after a
+        i1 = np.searchsorted(s[:-1], min(b, L), side="right")        # past the last one starting by b
+        if b > L:                                   # across the seam: the path's start too
+            j = min(i0, np.searchsorted(s[:-1], b - L, side="right"))
+            if j < i0:
+                a0, a1, b0, b1 = 0, j, i0, i1
             else:
-                a0, a1 = i0, i1
-            if max(a1 - a0, 0) + max(b1 - b0, 0) == 0:
-                a0 = n - 1 if lo > 0 else 0
-                a1, b0, b1 = a0 + 1, 0, 0
+                a0, a1 = 0, i1
+        elif a < 0.0:                               # across the seam: the path's end too
+            a0, a1, b0, b1 = i0, i1, max(i1, np.searchsorted(s[1:], a + L, side="left")), n
+        else:
+            a0, a1 = i0, i1
+        if max(a1 - a0, 0) + max(b1 - b0, 0) == 0:
+            a0 = n - 1 if lo > 0 else 0
+            a1, b0, b1 = a0 + 1, 0, 0
+    return a0, a1, b0, b1
+
+
+def nearest_arc_length(p, points, s, seg_vec, seg_len2, lo, span, closed, everything):
+    """The arc length of the point nearest to p (d,) on the segments of ``window_runs`` for the window
+    [lo, lo + span] (all of them with ``everything``), scanned in ascending order."""
+    a0, a1, b0, b1 = (0, seg_vec.shape[0], 0, 0) if everything else window_runs(s, lo, span, closed)
     d = p.shape[0]
     best_i, best_w, best_d2 = -1, 0.0, 0.0
     for r in range(2):

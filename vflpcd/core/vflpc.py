@@ -370,9 +370,9 @@ class VFLPC(ControllerBase):
         self.dim = planner.dim
         names, layout = model.state_names, PoseLayout.of(model.state_names)
         self._pos_index = np.array(layout.position)
-        self._pos_slice = (slice(layout.position[0], layout.position[-1] + 1)      # a view where they run on
-                           if list(layout.position) == list(range(layout.position[0], layout.position[-1] + 1))
-                           else self._pos_index)
+        first, count = layout.position[0], len(layout.position)
+        runs_on = tuple(layout.position) == tuple(range(first, first + count))
+        self._pos_slice = slice(first, first + count) if runs_on else self._pos_index     # a view where they run on
         d = planner.dim                 # the barrier without a threat: zero (its reference positions are not used)
         self._no_threat = HorizonBarrier(self._pos_index, np.zeros((self.N + 1, d)), np.zeros((0, self.N + 1, d)),
                                          np.zeros((0, self.N + 1, d)), np.zeros(0))

@@ -29,8 +29,8 @@ def increment_loop(c, B, u_ref, x0, u_prev, du_max, commanded, c_z, x0_z, lo, hi
     for q in range(commanded.shape[0]):
         j = commanded[q]
         for k in range(N):
-            lo[k, j] = -du_max[j] - 0.0
-            hi[k, j] = du_max[j] - 0.0
+            lo[k, j] = -du_max[j]
+            hi[k, j] = du_max[j]
         for k in range(1, N):
             s = u_ref[k - 1, j] - u_ref[k, j]
             c_z[k, n + j] = s
