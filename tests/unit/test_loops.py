@@ -1,5 +1,6 @@
 """Core's loops compiled with numba: once per process, and in memory where no cache can be written."""
 
+import dataclasses
 import logging
 
 import pytest
@@ -81,6 +82,26 @@ def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
     ctrl.errors.comp.corrected_next(U[1:], U[:-1], np.zeros((ctrl.N, ctrl.model.n_u)), back, tick.correction)
     assert ctrl.rate.loop is tick.increment and ctrl._command_loop is tick.command
     assert ctrl._horizon._loop is tick.reference
+    assert tuple(len(loop.signatures) for loop in compiled) == before
+
+
+def test_the_safety_loops_are_warmed_for_the_types_a_supervised_run_passes():
+    """Supervised runs of the car among parked and cutting-in cars and of the quadrotor among its
+    obstacles (the supervisor's clearance test, pre-filter and manoeuvre, the plan monitor's search)
+    add no signature to the warmed loops: none compiles in a tick."""
+    from sim.bench.safety import scene
+    from sim.runner import run_closed_loop
+    from vflpcd.config.scenarios import load_scenario
+    from vflpcd.controllers import make_controller
+
+    sup = loops.supervisor_loops()
+    compiled = (*dataclasses.astuple(sup), loops.polyline_loop())
+    before = tuple(len(loop.signatures) for loop in compiled)
+    assert before == (1, 1, 1, 1)
+    for scenario in (dataclasses.replace(scene("cut_in"), t_max=4.0),
+                     dataclasses.replace(load_scenario("uav_3d"), t_max=2.0)):
+        record = run_closed_loop(scenario, make_controller("vflpc", scenario), supervised=True)
+        assert (record.t_sup > 0).sum() > 30
     assert tuple(len(loop.signatures) for loop in compiled) == before
 
 
@@ -186,9 +207,10 @@ def test_vflpcd_compile_compiles_every_loop_and_says_so(capsys):
     lines = capsys.readouterr().out.splitlines()
     assert lines == [f"{name}: compiled" for name in
                      ("ebrhrl_loop", "scheduled_problem_loop", "tick_loops", "gp_add_loop", "ald_loop", "path_loop",
-                      "guidance_loops")]
+                      "polyline_loop", "supervisor_loops", "guidance_loops")]
     assert all(hasattr(fn(), "signatures") for fn in (loops.ebrhrl_loop, loops.scheduled_problem_loop, loops.path_loop))
     assert loops.guidance_loops().active_set is loops.active_set_loop()
+    assert all(hasattr(fn, "signatures") for fn in dataclasses.astuple(loops.supervisor_loops()))
 
 
 def test_vflpcd_compile_says_which_loops_run_interpreted_without_numba(monkeypatch, capsys):

@@ -66,6 +66,8 @@ def guard_for(scenario, period: float, state_names,
               settings: tuple[SupervisorConfig, MonitorConfig] | None = None) -> SafetyGuard:
     """The safety guard of a route's vehicle (its plant's limits and body), ticking every ``period`` s;
     ``settings``: from ``safety_settings`` (default: config/safety.toml as it is)."""
+    from vflpcd.controllers.loops import polyline_loop, supervisor_loops
+
     sup_cfg, mon_cfg = settings if settings is not None else safety_settings(scenario.platform)
     if scenario.platform == "ground":
         from vflpcd.config.vehicles import BicycleConfig
@@ -74,12 +76,13 @@ def guard_for(scenario, period: float, state_names,
         lim = bike.limits
         car = CarLimits(wheelbase=bike.params.wheelbase, a_min=lim.a_min, a_max=lim.a_max,
                         delta_max=lim.delta_max, delta_rate_max=lim.delta_rate_max)
-        sup = GroundSupervisor(sup_cfg, scenario.footprint, car, period, state_names)
+        sup = GroundSupervisor(sup_cfg, scenario.footprint, car, period, state_names, loops=supervisor_loops())
         plan_limits = PlanLimits(kappa_max=float(np.tan(lim.delta_max) / car.wheelbase), a_lat_max=scenario.a_lat_max)
     else:
         from vflpcd.config.vehicles import QuadrotorParams
 
         quad = QuadrotorParams.from_toml()
-        sup = AerialSupervisor(sup_cfg, scenario.footprint.radius, QuadLimits(quad.accel_max), period, state_names)
+        sup = AerialSupervisor(sup_cfg, scenario.footprint.radius, QuadLimits(quad.accel_max), period, state_names,
+                               loops=supervisor_loops())
         plan_limits = PlanLimits(kappa_max=np.inf, a_lat_max=scenario.a_lat_max)
-    return SafetyGuard(sup, mon_cfg, plan_limits, period)
+    return SafetyGuard(sup, mon_cfg, plan_limits, period, nearest=polyline_loop())

@@ -4,7 +4,9 @@ Core stays pure (numpy and scipy only, no files): it writes a loop as plain Pyth
 (``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.control.scheduled_kernel.problem_loop``,
 ``vflpcd.core.control.tick_kernel``'s ``window_loop`` and ``linearisation_loop``,
 ``vflpcd.core.dynamics.gp_kernel``'s ``add_sample_loop``, ``corrected_next_loop`` and ``ald_delta_loop``,
-``vflpcd.core.path_kernel.nearest_arc_length``,
+``vflpcd.core.path_kernel``'s ``nearest_arc_length`` and ``polyline_nearest``, the safety supervisor's
+``vflpcd.core.safety.clearance_kernel``'s ``clearances_loop`` and ``within_reach_loop`` and
+``vflpcd.core.safety.arc_kernel.arcs_loop``,
 and the guidance's ``active_set_kernel.solve_loop``, ``integrate_kernel.step_loop``,
 ``path_grid_kernel.fill_loop`` and ``half_plane_kernel``'s ``half_planes_loop`` and ``clear_loop``) and takes the compiled function as an argument. This
 module compiles each once per process, with numba's on-disk cache (beside the source, or numba's
@@ -93,6 +95,32 @@ def path_loop():
 
 
 @lru_cache(maxsize=1)
+def polyline_loop():
+    """``path_kernel.polyline_nearest`` (the plan monitor's nearest segment) compiled and loaded
+    (``_warm_polyline``), or None without numba."""
+    from vflpcd.core.path_kernel import polyline_nearest
+
+    return _compiled("polyline", polyline_nearest, _warm_polyline)
+
+
+@lru_cache(maxsize=1)
+def supervisor_loops():
+    """The safety supervisor's loops (``clearance_kernel``'s clearance test and its pre-filter,
+    ``arc_kernel``'s manoeuvre) compiled and loaded (``_warm_clearances``, ``_warm_within_reach``,
+    ``_warm_arcs``), as ``SupervisorLoops``, or None without numba."""
+    from vflpcd.core.safety import arc_kernel, clearance_kernel
+    from vflpcd.core.safety.supervisor import SupervisorLoops
+
+    if not _jitable(clearance_kernel._box_distance, clearance_kernel._signed_distance, arc_kernel._arc_point,
+                    arc_kernel._time_at):
+        return None
+    return SupervisorLoops(
+        clearances=_compiled("clearances", clearance_kernel.clearances_loop, _warm_clearances),
+        within_reach=_compiled("within_reach", clearance_kernel.within_reach_loop, _warm_within_reach),
+        arcs=_compiled("arcs", arc_kernel.arcs_loop, _warm_arcs))
+
+
+@lru_cache(maxsize=1)
 def active_set_loop():
     """``active_set_kernel.solve_loop`` (the guidance fairing's and tight path's convex problems)
     compiled and loaded (``_warm_active_set``), or None without numba."""
@@ -171,7 +199,7 @@ def compile_all() -> dict[str, bool]:
     10-15 s of CPU (docs/results.md, "The test suite", for what compiling beside real-time runs did)."""
     return {fn.__name__: fn() is not None
             for fn in (ebrhrl_loop, scheduled_problem_loop, tick_loops, gp_add_loop, ald_loop, path_loop,
-                       guidance_loops)}
+                       polyline_loop, supervisor_loops, guidance_loops)}
 
 
 @lru_cache(maxsize=1)
@@ -336,6 +364,45 @@ def _warm_ald(loop) -> None:
     ald = ALDDictionary(2, 0.1, 4, delta_loop=loop)
     ald.consider(np.zeros(2))
     ald.consider(np.ones(2))
+
+
+def _warm_polyline(loop) -> None:
+    """Compile (or load) the loop now, for the arguments ``path.nearest_on_polyline`` passes (d = 2, 3)."""
+    import numpy as np
+
+    for d in (2, 3):
+        loop(np.zeros(d), np.ones((3, d)))
+
+
+def _warm_arcs(loop) -> None:
+    """Compile (or load) the loop now, for the arguments ``GroundSupervisor._poses_moving`` passes."""
+    import numpy as np
+
+    loop(0.0, 0.0, 0.0, 0.0, 0.01, 0.0, 1.0, 0.5, 2, 1.0, 0.0, 0.1, 1.0, -1.0, 1.0, np.empty((4, 2)), np.empty(4),
+         np.empty(4))
+
+
+def _warm_within_reach(loop) -> None:
+    """Compile (or load) the loop now, for the arguments ``Supervisor._within_reach`` passes (d = 2, 3)."""
+    import numpy as np
+
+    for d in (2, 3):
+        loop(np.zeros(d), np.zeros((2, 2 * d + 1)), np.zeros((2, 4 + d)), 0.0, 1.0, 1.0, np.empty(2, dtype=bool))
+
+
+def _warm_clearances(loop) -> None:
+    """Compile (or load) the loop now, for the arguments ``Supervisor._compiled_clearances`` passes:
+    the car's (d = 2) and the quadrotor's (d = 3)."""
+    import numpy as np
+
+    for d in (2, 3):
+        motion = np.zeros((2, 2 * d + 1))
+        motion[1, d] = 1.0
+        shape = np.zeros((2, 4 + d))
+        shape[:, 1] = 1.0
+        shape[1, 3] = 1.0
+        loop(np.zeros((3, d)), np.zeros(3), np.arange(3.0), np.zeros(2), motion, shape, np.ones((3, d)), True, True,
+             False, 0.5, 2.0, 0.35)
 
 
 def _warm_path(loop) -> None:

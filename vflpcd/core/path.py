@@ -7,6 +7,8 @@ twice-differentiable cubic spline (periodic when the path is closed).
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -253,12 +255,16 @@ def progress_delta(path: ReferencePath, s_new: float, s_old: float) -> float:
 __all__ = ["Projection", "ReferencePath", "nearest_on_polyline", "progress_delta", "wrap_angle"]
 
 
-def nearest_on_polyline(p: np.ndarray, xy: np.ndarray) -> tuple[float, int]:
+def nearest_on_polyline(p: np.ndarray, xy: np.ndarray, loop=None) -> tuple[float, int]:
     """Distance (m) from point p (d,) to the polyline through xy (K, d), and the index of the
-    segment's first vertex that is nearest."""
+    segment's first vertex that is nearest; ``loop``: ``path_kernel.polyline_nearest`` compiled (the
+    same numbers, for a p and xy of floats)."""
     xy = np.asarray(xy, float)
     if len(xy) == 1:
         return float(np.linalg.norm(p - xy[0])), 0
+    if loop is not None:
+        d2, i = loop(np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(xy))
+        return math.sqrt(d2), i
     a, ab = xy[:-1], np.diff(xy, axis=0)
     w = np.einsum("kd,kd->k", ab, ab)
     h = np.clip(np.einsum("kd,kd->k", p - a, ab) / np.maximum(w, 1e-12), 0.0, 1.0)

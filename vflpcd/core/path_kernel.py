@@ -1,4 +1,5 @@
-"""The nearest-segment search of ``path.ReferencePath`` as one plain loop to compile.
+"""The nearest-segment searches of ``path.ReferencePath`` and of ``path.nearest_on_polyline`` as plain
+loops to compile.
 
 The candidate segments are those of ``window_runs`` (which ``ReferencePath._searched`` uses too: the
 binary searches on the arc lengths, the seam of a closed path included), scanned in ascending order. For each segment i (first vertex a = points[i], direction v = seg_vec[i]) the foot
@@ -82,3 +83,28 @@ def nearest_arc_length(p, points, s, seg_vec, seg_len2, lo, span, closed, everyt
             if best_i < 0 or d2 < best_d2:
                 best_i, best_w, best_d2 = i, w, d2
     return s[best_i] + best_w * math.sqrt(seg_len2[best_i])
+
+
+def polyline_nearest(p, xy):
+    """``path.nearest_on_polyline``'s search over the polyline through xy (K, d), K >= 2, in its order
+    of operations: (the least squared distance from p (d,), the index of its segment's first
+    vertex), the first of equals (np.argmin's choice; a NaN wins at once)."""
+    d = p.shape[0]
+    best_i, best_d2 = -1, 0.0
+    for i in range(xy.shape[0] - 1):
+        w = 0.0
+        dot = 0.0
+        for j in range(d):
+            ab = xy[i + 1, j] - xy[i, j]
+            w += ab * ab
+            dot += (p[j] - xy[i, j]) * ab
+        h = min(max(dot / max(w, 1e-12), 0.0), 1.0)
+        d2 = 0.0
+        for j in range(d):
+            e = xy[i, j] + h * (xy[i + 1, j] - xy[i, j]) - p[j]
+            d2 += e * e
+        if d2 != d2:                        # NaN
+            return d2, i
+        if best_i < 0 or d2 < best_d2:
+            best_i, best_d2 = i, d2
+    return best_d2, best_i

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from vflpcd.core.guidance.speed import menger_curvature
-from vflpcd.core.path import ReferencePath, feet_arc_lengths, feet_on_polyline, progress_delta, unit_differences
+from vflpcd.core.path import (ReferencePath, feet_arc_lengths, feet_on_polyline, nearest_on_polyline, progress_delta,
+                              unit_differences)
 
 
 def test_arc_curvature_and_length():
@@ -110,6 +111,31 @@ def test_on_a_3d_path_the_nearest_segment_loop_gives_the_numpy_searchs_arc_lengt
         expected = path.arc_length_of(p, s_hint)
         for loop in loops:
             assert abs(path.arc_length_of(p, s_hint, loop=loop) - expected) <= 1e-12
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_the_polyline_loop_finds_the_numpy_searchs_segment_and_distance(d):
+    """path_kernel.polyline_nearest, run as Python and compiled, gives nearest_on_polyline's segment
+    and distance (the safety guard's plan monitor): planar the same numbers, in 3-D to 1e-12; with
+    repeated vertices (zero-length segments) and points beyond the ends."""
+    from vflpcd.core.path_kernel import polyline_nearest
+
+    loops = [polyline_nearest]
+    if importlib.util.find_spec("numba") is not None:
+        from vflpcd.controllers.loops import polyline_loop
+
+        loops.append(polyline_loop())
+    rng = np.random.default_rng(8 + d)
+    for trial in range(300):
+        xy = np.cumsum(rng.normal(0.0, 2.0, size=(int(rng.integers(2, 60)), d)), axis=0)
+        if trial % 10 == 0:
+            xy[len(xy) // 2] = xy[len(xy) // 2 - 1]
+        p = xy[rng.integers(len(xy))] + rng.normal(size=d) * rng.choice([0.01, 1.0, 30.0])
+        distance, i = nearest_on_polyline(p, xy)
+        for loop in loops:
+            got, j = nearest_on_polyline(p, xy, loop)
+            assert j == i and abs(got - distance) <= 1e-12
+            assert d == 3 or got == distance
 
 
 @pytest.mark.parametrize("back, ahead", [(10.0, 30.0), (0.0, 5.0), (3.0, 0.0), (60.0, 40.0)])

@@ -39,12 +39,13 @@ class GuardStep:
 class SafetyGuard:
     """supervisor: a ``GroundSupervisor`` or ``AerialSupervisor``; monitors: their thresholds;
     plan_limits: the vehicle's curvature and lateral-acceleration limits; period: the control
-    period (s)."""
+    period (s); nearest: ``path_kernel.polyline_nearest`` compiled, for the plan monitor's search
+    (None: its numpy path)."""
 
     def __init__(self, supervisor: Supervisor, monitors: MonitorConfig, plan_limits: PlanLimits,
-                 period: float) -> None:
+                 period: float, nearest=None) -> None:
         self.supervisor, self.cfg = supervisor, monitors
-        self.plans = PlanWatch(monitors, plan_limits)
+        self.plans = PlanWatch(monitors, plan_limits, nearest)
         self.tracking = TrackingWatch(monitors)
         self.response = ResponseWatch(monitors, period)
         self.reset()

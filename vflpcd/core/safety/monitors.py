@@ -90,8 +90,9 @@ class PlanWatch:
     gives the reason to stop once the plan has been missing, undrivable ahead or not renewed after
     failing replans for longer than ``plan_timeout``."""
 
-    def __init__(self, cfg: MonitorConfig, limits: PlanLimits) -> None:
+    def __init__(self, cfg: MonitorConfig, limits: PlanLimits, nearest=None) -> None:
         self.cfg, self.limits = cfg, limits
+        self._nearest_loop = nearest              # path_kernel.polyline_nearest compiled, or None
         self.reset()
 
     def reset(self) -> None:
@@ -144,11 +145,11 @@ class PlanWatch:
         the body is not near the window's inside)."""
         if self.near is not None:
             lo = max(self.near - 10, 0)
-            distance, j = nearest_on_polyline(position, xy[lo:self.near + 40])
+            distance, j = nearest_on_polyline(position, xy[lo:self.near + 40], self._nearest_loop)
             if lo < lo + j < min(self.near + 39, len(xy) - 2) or len(xy) <= 50:
                 self.near = lo + j
                 return distance, self.near
-        distance, self.near = nearest_on_polyline(position, xy)
+        distance, self.near = nearest_on_polyline(position, xy, self._nearest_loop)
         return distance, self.near
 
     def _bad_points(self, plan) -> np.ndarray:

@@ -72,6 +72,20 @@ class ObstacleArrays:
     bound = property(lambda self: self.shape[:, 0])
     form = property(lambda self: self.shape[:, 3])
 
+    def stand_as(self, other: ObstacleArrays | None) -> bool:
+        """Whether ``other`` holds the same obstacles (ids and shapes) with the same centres, velocities
+        and yaws (their stamps aside)."""
+        d2 = 2 * self.d
+        return (other is not None and len(self.states) == len(other.states)
+                and np.array_equal(self.motion[:, :d2], other.motion[:, :d2])
+                and np.array_equal(self.shape, other.shape)
+                and all(a.id == b.id and a.shape == b.shape for a, b in zip(self.states, other.states)))
+
+    @property
+    def closed(self) -> bool:
+        """Whether every shape has a closed form here (round or box)."""
+        return not (self.shape[:, 3] == OTHER).any()
+
     def _box(self, rel: np.ndarray) -> np.ndarray:
         """Signed distance of offsets rel (n, ..., d) from the centres to each obstacle's oriented
         bounding box, shape (n, ...)."""

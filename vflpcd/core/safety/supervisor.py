@@ -35,14 +35,17 @@ speed fell below ``hold_speed`` (a PD law on that point).
 
 Cost: one closed-form roll-out of K <= ``samples`` poses, a pre-filter over all obstacles in one
 array operation (``obstacle_arrays``: bounding circles and boxes), exact signed distances (closed
-form for circles and boxes, in one array operation) only for the obstacles that pass it.
+form for circles and boxes) only for the obstacles that pass it: in one array operation each, or,
+given the compiled loops of ``clearance_kernel`` and ``arc_kernel`` (``SupervisorLoops``), one
+obstacle, pose and disc at a time in machine code, the same numbers without the arrays' temporaries.
 """
 
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -92,6 +95,17 @@ class QuadLimits:
 
 
 @dataclass(frozen=True)
+class SupervisorLoops:
+    """The supervisor's loops compiled (``vflpcd.controllers.loops.supervisor_loops``):
+    ``clearance_kernel``'s clearance test of round and box shapes and its pre-filter of the
+    obstacles within reach, and ``arc_kernel``'s samples of the car's manoeuvre."""
+
+    clearances: Callable
+    within_reach: Callable
+    arcs: Callable
+
+
+@dataclass(frozen=True)
 class Verdict:
     """One tick's decision. command: what goes to the platform (n_u,); override: the emergency
     manoeuvre replaced the controller's command; engaged: an intervention began this tick (with
@@ -115,19 +129,23 @@ class Supervisor:
 
     DIM: int
 
-    def __init__(self, config: SupervisorConfig, footprint: Footprint, period: float) -> None:
+    def __init__(self, config: SupervisorConfig, footprint: Footprint, period: float,
+                 loops: SupervisorLoops | None = None) -> None:
         self.cfg, self.period = config, float(period)
         self.reaction = self.period + config.latency_s
-        self.offsets, self.radius = np.asarray(footprint.offsets, float), float(footprint.radius)
+        self.offsets, self.radius = np.ascontiguousarray(footprint.offsets, float), float(footprint.radius)
         self.reach = float(np.max(np.abs(self.offsets)) + self.radius)
         self._middle = float(np.mean(self.offsets))            # body middle ahead of the reference point (m)
+        self._loops = loops                                    # compiled, or None: the numpy paths
+        self._no_heading = np.zeros((0, self.DIM))
         self.reset()
 
     def reset(self) -> None:
         self.active = False
         self.interventions = 0
         self.movers_near = False
-        self._memo: tuple = (None, (np.inf, ""))
+        self._memo: tuple = (None, None, (np.inf, ""))
+        self._tick_arrays: tuple = (None, (), None)
 
     # ------------------------------------------------------------------ per tick
     def filter(self, state: np.ndarray, command: np.ndarray, obstacles: Sequence[ObstacleState], t: float) -> Verdict:
@@ -166,10 +184,11 @@ class Supervisor:
         self.movers_near = False
         if not obstacles:
             return np.inf, ""
-        key = self._memo_key(state, u, obstacles)
-        if key is not None and key == self._memo[0]:
-            return self._memo[1]
-        arrays = full = ObstacleArrays.of(obstacles, self.DIM)
+        arrays = full = self._arrays(obstacles, t)
+        key = None if arrays.moving.any() else (state.tobytes(), u.tobytes(), self._estimate())
+        memo_key, memo_arrays, memo_result = self._memo
+        if key is not None and key == memo_key and arrays.stand_as(memo_arrays):
+            return memo_result
         near = self._within_reach(state, u, arrays, t)
         self.movers_near = bool((near & arrays.moving).any())
         if not near.any():
@@ -194,7 +213,7 @@ class Supervisor:
                 if cg > cm:
                     cm, wm = cg, wg
             result = (cs, ws) if cs <= cm else (cm, wm)
-        self._memo = (key, result)
+        self._memo = (key, full, result)
         return result
 
     def _stop_clearances(self, pos: np.ndarray, yaw: np.ndarray, times: np.ndarray, arrays: ObstacleArrays
@@ -234,19 +253,22 @@ class Supervisor:
         are none by default."""
         return []
 
-    def _memo_key(self, state: np.ndarray, u: np.ndarray, obstacles: Sequence[ObstacleState]) -> tuple | None:
-        """What the prediction depends on when every obstacle stands still (None when one moves: then
-        it depends on the time too): the same state, command, platform estimate and obstacles give
-        the same clearance, as for a body held at rest in front of a wall, tick after tick."""
-        rows = []
-        for o in obstacles:
-            if o.velocity.any():
-                return None
-            rows.append((o.id, o.shape, o.yaw, o.center.tobytes()))
-        return state.tobytes(), u.tobytes(), self._estimate(), tuple(rows)
+    def _arrays(self, obstacles: Sequence[ObstacleState], t: float) -> ObstacleArrays:
+        """``ObstacleArrays.of`` the obstacles, kept for the other predictions of the same tick (time t)
+        about the same obstacle states (the objects themselves)."""
+        when, states, arrays = self._tick_arrays
+        if when == t and len(states) == len(obstacles) and all(map(operator.is_, states, obstacles)):
+            return arrays
+        states = tuple(obstacles)
+        arrays = ObstacleArrays.of(states, self.DIM)
+        self._tick_arrays = (t, states, arrays)
+        return arrays
 
     def _estimate(self):
-        """The platform's estimated internal state that the prediction uses (none by default)."""
+        """The platform's estimated internal state that the prediction uses (none by default). With every
+        obstacle at rest, the same state, command, estimate and obstacles give the same clearance (as
+        for a body held at rest in front of a wall, tick after tick): ``predicted_clearance`` keeps the
+        last one."""
         return None
 
     def _within_reach(self, state: np.ndarray, u: np.ndarray, arrays: ObstacleArrays, t: float) -> np.ndarray:
@@ -257,6 +279,11 @@ class Supervisor:
         distance, duration = self._extent(state, u)
         duration += self.cfg.mover_wait_s
         pos, _ = self._pose_now(state)
+        if self._loops is not None:
+            near = np.empty(len(arrays), dtype=bool)
+            self._loops.within_reach(np.ascontiguousarray(pos), arrays.motion, arrays.shape, float(t),
+                                     float(t + duration), distance + self.reach + self.cfg.release_margin, near)
+            return near
         gap = arrays.gap_bound(pos)
         velocity = arrays.velocity
         speed = np.sqrt((velocity * velocity).sum(axis=1))
@@ -272,6 +299,8 @@ class Supervisor:
         """Least disc-cover clearance of the body at poses pos (K, d), yaw (K,) at absolute times (K,),
         to the static and to the moving obstacles (those within reach: ``_within_reach``), each with
         the id that sets it (``behind``: also movers behind the body's middle)."""
+        if self._loops is not None and arrays.closed:
+            return self._compiled_clearances(pos, yaw, times, arrays, movers_only, behind)
         discs = self._discs(pos, yaw)                                           # (K, n, d)
         K, n, d = discs.shape
         moving = arrays.moving
@@ -307,6 +336,17 @@ class Supervisor:
                     mover = (float(gap[i]) - self.radius, movers.states[i].id)
         return static, mover
 
+    def _compiled_clearances(self, pos: np.ndarray, yaw: np.ndarray, times: np.ndarray, arrays: ObstacleArrays,
+                             movers_only: bool, behind: bool) -> tuple[tuple[float, str], tuple[float, str]]:
+        """``_clearances`` by the compiled ``clearance_kernel.clearances_loop`` (round and box shapes)."""
+        pos, yaw, times = np.ascontiguousarray(pos), np.ascontiguousarray(yaw), np.ascontiguousarray(times)
+        heading = self._heading(pos, yaw) if not behind and arrays.moving.any() else self._no_heading
+        cs, i, cm, j = self._loops.clearances(pos, yaw, times, self.offsets, arrays.motion, arrays.shape,
+                                  np.ascontiguousarray(heading), not movers_only, True, behind, self._middle,
+                                  self.reach, self.cfg.release_margin)
+        return ((float(cs) - self.radius, arrays.states[i].id) if i >= 0 else (np.inf, ""),
+                (float(cm) - self.radius, arrays.states[j].id) if j >= 0 else (np.inf, ""))
+
     def braking_meets_mover(self, state: np.ndarray, command: np.ndarray, obstacles: Sequence[ObstacleState],
                             t: float) -> str:
         """The id of a moving obstacle that braking now would leave in the body's way (while it brakes,
@@ -314,7 +354,7 @@ class Supervisor:
         is none): stopping there is worse than going on."""
         if not obstacles:
             return ""
-        arrays = ObstacleArrays.of(obstacles, self.DIM)
+        arrays = self._arrays(obstacles, t)
         if not arrays.moving.any():
             return ""
         pos, yaw, times = self._standing(*self._poses(state, self._brake_command(state), True), with_stop=True)
@@ -409,11 +449,11 @@ class GroundSupervisor(Supervisor):
     DIM = 2
 
     def __init__(self, config: SupervisorConfig, footprint: Footprint, limits: CarLimits, period: float,
-                 state_names: Sequence[str] = STATE) -> None:
+                 state_names: Sequence[str] = STATE, loops: SupervisorLoops | None = None) -> None:
         self.limits = limits
         self._idx = [tuple(state_names).index(n) for n in self.STATE]
         self.body = footprint
-        super().__init__(config, footprint.with_discs(config.discs), period)
+        super().__init__(config, footprint.with_discs(config.discs), period, loops)
         self.a_brake = config.decel_factor * -limits.a_min
 
     def reset(self) -> None:
@@ -484,9 +524,13 @@ class GroundSupervisor(Supervisor):
         n = int(min(self.cfg.samples, max(2, math.ceil(s_end / self.cfg.max_step_m) + 1)))
         ds = s_end / (n - 1)
         n1 = min(n, int(s1 / ds) + 1)             # samples on the first arc (s <= s1)
+        course = psi + (math.atan2(vy, vx) if vx > 0.5 else 0.0)
+        if self._loops is not None:               # the same numbers, compiled (arc_kernel)
+            pos, yaw, times = np.empty((n, 2)), np.empty(n), np.empty(n)
+            self._loops.arcs(X, Y, course, psi, k1, k2, s1, ds, n1, v0, a1, t1, v1, a2, t2, pos, yaw, times)
+            return pos, yaw, times
         s = np.arange(n) * ds
         sa, sb = s[:n1], s[n1:] - s1
-        course = psi + (math.atan2(vy, vx) if vx > 0.5 else 0.0)
         pos, yaw, times = np.empty((n, 2)), np.empty(n), np.empty(n)
         _arc_into(pos[:n1], X, Y, course, k1, sa)
         yaw[:n1] = psi + k1 * sa
@@ -544,7 +588,7 @@ class GroundSupervisor(Supervisor):
             brake, clear = straight, straight_clear
         if clear >= self.cfg.margin:
             return brake
-        arrays = ObstacleArrays.of(obstacles, self.DIM)
+        arrays = self._arrays(obstacles, t)
         stop = self._stop_gaps(state, brake, arrays, t)
         if self.speed(state) >= GOING_ON_SPEED and not self._runs_into(stop, arrays, t):
             # braking leaves the body in a mover's way: going on may clear it
@@ -636,13 +680,13 @@ class AerialSupervisor(Supervisor):
     DIM = 3
 
     def __init__(self, config: SupervisorConfig, radius: float, limits: QuadLimits, period: float,
-                 state_names: Sequence[str]) -> None:
+                 state_names: Sequence[str], loops: SupervisorLoops | None = None) -> None:
         self.limits = limits
         names = tuple(state_names)
         self._p = [names.index(n) for n in ("X", "Y", "Z")]
         self._v = [names.index(n) for n in ("vx", "vy", "vz")]
         self.body = Footprint.sphere(radius)
-        super().__init__(config, self.body, period)
+        super().__init__(config, self.body, period, loops)
         self.a_brake = config.decel_factor * limits.accel_max
 
     def reset(self) -> None:

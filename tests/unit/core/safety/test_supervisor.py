@@ -150,6 +150,28 @@ def test_an_intervention_is_released_only_with_the_release_margin():
     assert not v.override and v.released
 
 
+def test_a_body_at_rest_reuses_its_prediction_only_while_the_obstacles_stand_where_they_stood():
+    """The same state, command and obstacles (new states, later stamps) give the last clearance without
+    a new prediction; a wall moved or of another shape is predicted again."""
+    plant, sup, _ = car(0.0)
+    predictions = []
+    poses = sup._poses
+    sup._poses = lambda *a, **k: predictions.append(1) or poses(*a, **k)
+    u = np.array([0.0, 0.0])
+
+    def clearance(wall, t):
+        before = len(predictions)
+        return sup.filter(plant.state, u, [wall], t).clearance, len(predictions) > before
+
+    c0, new = clearance(obstacle("wall", Box(1.0, 10.0), [4.0, 0.0]), 0.0)   # the steering estimate starts here
+    assert new and clearance(obstacle("wall", Box(1.0, 10.0), [4.0, 0.0]), 0.0)[0] == c0
+    assert clearance(obstacle("wall", Box(1.0, 10.0), [4.0, 0.0], stamp=DT), DT) == (c0, False)
+    c1, new = clearance(obstacle("wall", Box(1.0, 10.0), [3.5, 0.0]), 2 * DT)
+    assert new and c1 == pytest.approx(c0 - 0.5, abs=0.02)
+    c2, new = clearance(obstacle("wall", Box(2.0, 10.0), [3.5, 0.0]), 3 * DT)
+    assert new and c2 == pytest.approx(c1 - 0.5, abs=0.02)
+
+
 def test_contact_is_the_exact_body_clearance():
     plant, sup, body = car(0.0)
     on_top = obstacle("on_top", Circle(1.0), [0.0, 0.0])
