@@ -23,20 +23,23 @@ import numpy as np
 
 from vflpcd.core.obstacles import ObstacleState
 
-_SHAPE_ROWS: dict = {}        # (shape, yaw) -> (bounding radius, cos, sin, form code, *half-extents)
+_SHAPE_ROWS: dict = {}        # (id(shape), yaw) -> (shape, its row): the shape held, so its id is not reused
 ROUND, BOX, OTHER = 0, 1, 2
 _FORMS = {"round": ROUND, "box": BOX}
 
 
 def _shape_row(shape, yaw: float) -> tuple:
-    key = (shape, yaw)
-    row = _SHAPE_ROWS.get(key)
-    if row is None:
-        if len(_SHAPE_ROWS) > 4096:
-            _SHAPE_ROWS.clear()
-        row = (float(shape.bounding_radius()), math.cos(yaw), math.sin(yaw), _FORMS.get(shape.closed_form, OTHER),
-               *(float(h) for h in shape.support_extent()))
-        _SHAPE_ROWS[key] = row
+    """(bounding radius, cos, sin, form code, *half-extents) of a shape at yaw; kept by the shape
+    object's identity (hashing a frozen shape's fields cost more than the lookup)."""
+    key = (id(shape), yaw)
+    held = _SHAPE_ROWS.get(key)
+    if held is not None and held[0] is shape:
+        return held[1]
+    if len(_SHAPE_ROWS) > 4096:
+        _SHAPE_ROWS.clear()
+    row = (float(shape.bounding_radius()), math.cos(yaw), math.sin(yaw), _FORMS.get(shape.closed_form, OTHER),
+           *(float(h) for h in shape.support_extent()))
+    _SHAPE_ROWS[key] = (shape, row)
     return row
 
 
@@ -54,9 +57,10 @@ class ObstacleArrays:
     @classmethod
     def of(cls, obstacles: Sequence[ObstacleState], d: int) -> ObstacleArrays:
         """The obstacles of a d-dimensional world (their shapes' dimension)."""
-        motion = np.array([(*o.center.tolist(), *o.velocity.tolist(), o.stamp) for o in obstacles], float).reshape(-1, 2 * d + 1)
-        shape = np.array([_shape_row(o.shape, float(o.yaw)) for o in obstacles], float).reshape(-1, 4 + d)
-        return cls(tuple(obstacles), motion, shape, d)
+        rows = np.array([(*o.center.tolist(), *o.velocity.tolist(), o.stamp, *_shape_row(o.shape, float(o.yaw)))
+                         for o in obstacles], float).reshape(-1, 3 * d + 5)
+        return cls(tuple(obstacles), np.ascontiguousarray(rows[:, :2 * d + 1]), np.ascontiguousarray(rows[:, 2 * d + 1:]),
+                   d)
 
     def __len__(self) -> int:
         return len(self.states)

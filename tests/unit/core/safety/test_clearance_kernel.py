@@ -34,6 +34,12 @@ def quad_supervisor(loops):
                             loops=loops)
 
 
+def supervisors(loops, d: int):
+    """The car's (d = 2) or the quadrotor's supervisor on its numpy paths, and with ``loops``."""
+    make = car_supervisor if d == 2 else quad_supervisor
+    return make(None), make(loops)
+
+
 def scene(rng, d: int, n: int) -> list[ObstacleState]:
     """n obstacles within 8 m (a quadrotor's 4 m) of the origin, half of them moving, round and box shapes."""
     out = []
@@ -61,8 +67,7 @@ def poses(rng, d: int, K: int):
 @pytest.mark.parametrize("d", [2, 3])
 def test_the_compiled_clearances_are_the_numpy_ones(loops, d):
     rng = np.random.default_rng(7 + d)
-    make = car_supervisor if d == 2 else quad_supervisor
-    plain, fast = make(None), make(loops)
+    plain, fast = supervisors(loops, d)
     checked = np.zeros(2, int)              # finite static and mover clearances compared
     for trial in range(120):
         obstacles = scene(rng, d, int(rng.integers(1, 7)))
@@ -83,8 +88,7 @@ def test_the_compiled_clearances_are_the_numpy_ones(loops, d):
 @pytest.mark.parametrize("d", [2, 3])
 def test_the_compiled_pre_filter_keeps_the_obstacles_that_the_numpy_one_keeps(loops, d):
     rng = np.random.default_rng(3 + d)
-    make = car_supervisor if d == 2 else quad_supervisor
-    plain, fast = make(None), make(loops)
+    plain, fast = supervisors(loops, d)
     kept = dropped = 0
     for trial in range(300):
         obstacles = scene(rng, d, int(rng.integers(1, 9)))
