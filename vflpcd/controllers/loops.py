@@ -111,7 +111,7 @@ def supervisor_loops():
     from vflpcd.core.safety import arc_kernel, clearance_kernel
     from vflpcd.core.safety.supervisor import SupervisorLoops
 
-    if not _jitable(clearance_kernel._box_distance, clearance_kernel._signed_distance, arc_kernel._arc_point,
+    if not _jitable(clearance_kernel._box_distance, clearance_kernel._signed_distance, arc_kernel.arc_point,
                     arc_kernel._time_at):
         return None
     return SupervisorLoops(

@@ -4,8 +4,9 @@ tests/unit/core/safety/test_clearance_kernel.py).
 
 ``within_reach_loop`` is ``Supervisor._within_reach``'s pre-filter (``ObstacleArrays.gap_bound``
 less each obstacle's own motion, against the manoeuvre's reach). ``clearances_loop`` takes the
-body's poses along a manoeuvre and ``ObstacleArrays``' two arrays, and returns the least signed distance of the body's covering discs to the static obstacles and to
-the movers, each with the obstacle's row that sets it: the operations of ``_clearances``,
+body's poses along a manoeuvre and ``ObstacleArrays``' two arrays, and returns the least signed
+distance of the body's covering discs to the static obstacles and to the movers, each with the
+obstacle's row that sets it: the operations of ``_clearances``,
 ``ObstacleArrays.signed_distance`` and ``ObstacleArrays._box`` in their order, one pose, disc and
 obstacle at a time, in place of the (obstacles, poses, discs, d) temporaries whose fixed cost
 dominated a tick. It knows the closed forms only (round and box shapes, ``ObstacleArrays.closed``);

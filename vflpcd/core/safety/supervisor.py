@@ -51,6 +51,7 @@ import numpy as np
 
 from vflpcd.core.footprint import Footprint
 from vflpcd.core.obstacles import ObstacleState
+from vflpcd.core.safety.arc_kernel import STRAIGHT, arc_point
 from vflpcd.core.safety.obstacle_arrays import ObstacleArrays
 
 
@@ -519,8 +520,8 @@ class GroundSupervisor(Supervisor):
         s2 m of k2 in t2 s from v1 at a2."""
         s_end = s1 + s2
         if s_end <= self.cfg.max_step_m:           # (nearly) at rest: the pose now and the end pose
-            end = _arc_end(X, Y, psi, k1, s_end)
-            return np.array([[X, Y], end[:2]]), np.array([psi, psi + k1 * s_end]), np.array([0.0, t1 + t2])
+            end = arc_point(X, Y, psi, k1, s_end, s_end)
+            return np.array([[X, Y], end]), np.array([psi, psi + k1 * s_end]), np.array([0.0, t1 + t2])
         n = int(min(self.cfg.samples, max(2, math.ceil(s_end / self.cfg.max_step_m) + 1)))
         ds = s_end / (n - 1)
         n1 = min(n, int(s1 / ds) + 1)             # samples on the first arc (s <= s1)
@@ -536,8 +537,8 @@ class GroundSupervisor(Supervisor):
         yaw[:n1] = psi + k1 * sa
         times[:n1] = _time_at(sa, v0, a1, t1)
         if n1 < n:
-            Xb, Yb, cb = _arc_end(X, Y, course, k1, s1)
-            _arc_into(pos[n1:], Xb, Yb, cb, k2, sb)
+            Xb, Yb = arc_point(X, Y, course, k1, s1, s1)
+            _arc_into(pos[n1:], Xb, Yb, course + k1 * s1, k2, sb)
             yaw[n1:] = psi + k1 * s1 + k2 * sb
             times[n1:] = t1 + _time_at(sb, v1, a2, t2)
         return pos, yaw, times
@@ -784,26 +785,12 @@ def _time_at(s: np.ndarray, v0: float, a: float, t_max: float) -> np.ndarray:
     return np.minimum(t, t_max)
 
 
-# below this |kappa s| an arc is taken as its chord along the mean heading (error s (kappa s)^2 / 24,
-# under 1e-8 m for s <= 40 m); above it the closed form loses at most ~1e-10 m to cancellation
-_STRAIGHT = 1e-4
-
-
-def _arc_end(x: float, y: float, heading: float, kappa: float, s: float) -> tuple[float, float, float]:
-    """End point and heading of an arc of curvature kappa and length s from (x, y, heading)."""
-    end = heading + kappa * s
-    if abs(kappa * s) < _STRAIGHT:
-        mid = heading + 0.5 * kappa * s
-        return x + s * math.cos(mid), y + s * math.sin(mid), end
-    return x + (math.sin(end) - math.sin(heading)) / kappa, y - (math.cos(end) - math.cos(heading)) / kappa, end
-
-
 def _arc_into(out: np.ndarray, x: float, y: float, heading: float, kappa: float, s: np.ndarray) -> None:
     """Points (K, 2) into out of the arc of curvature kappa from (x, y, heading) at lengths s (K,),
     s ascending from 0."""
     if len(s) == 0:
         return
-    if abs(kappa * s[-1]) < _STRAIGHT:
+    if abs(kappa * s[-1]) < STRAIGHT:
         mid = heading + 0.5 * kappa * s
         out[:, 0] = x + s * np.cos(mid)
         out[:, 1] = y + s * np.sin(mid)
