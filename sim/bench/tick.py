@@ -15,11 +15,14 @@
 
 3. Paced. VF-LPC with the online GP on ``racing_track`` (the controller of ``vflpcd bench loop``)
    ticks back to back, as in the offline runner, and paced: each tick starts a 10 ms period and
-   the rest of it is slept, as the daemon's 100 Hz loop does. Median and p99 of each: the same
-   code on the same states takes longer after an idle gap (caches and predictors cooled), which is
-   why the daemon's compute is not the offline tick's.
+   the rest of it is slept, as the daemon's 100 Hz loop does. Median and p99 of each, and each
+   phase's median in both (the phase timers run in both): the same code on the same states takes
+   longer after an idle gap (caches and predictors cooled), which is why the daemon's compute is
+   not the offline tick's. Then the machine alone (``cold_calls``): a numpy add and a compiled call
+   that does nothing, each the first call after a 10 ms sleep and the same call again at once.
 
-JSON (the three tables) and a PNG (the breakdown as bars, the scaling as lines) go to --out.
+JSON (the three tables and the machine's calls) and a PNG (the breakdown as bars, the scaling as
+lines) go to --out.
 """
 
 from __future__ import annotations
@@ -115,10 +118,11 @@ def breakdown(scenario_name: str) -> dict:
 def paced(scenario: Scenario, name: str, period: float) -> dict:
     """Controller ``name``'s step times on ``scenario`` ticking back to back and paced (``period`` s
     from one tick's start to the next, the rest slept): per mode the ticks, their median and p99 us
-    (``times``: every tick's seconds)."""
+    (``times``: every tick's seconds) and each phase's median us (``timed_phases``)."""
     out = {}
     for mode in ("back to back", "paced"):
         controller = make_controller(name, scenario)
+        phases = timed_phases(controller)
         ticks: list[float] = []
         step = controller.step
 
@@ -134,8 +138,38 @@ def paced(scenario: Scenario, name: str, period: float) -> dict:
         controller.step = timed
         run_closed_loop(scenario, controller)
         out[mode] = {"ticks": len(ticks), "median_us": float(np.median(ticks) * 1e6),
-                     "p99_us": float(np.percentile(ticks, 99) * 1e6), "times": ticks}
+                     "p99_us": float(np.percentile(ticks, 99) * 1e6), "times": ticks,
+                     "phases_median_us": {p: float(np.median(v) * 1e6) for p, v in phases.items() if v}}
     return {"scenario": scenario.name, "controller": name, "period_s": period, "modes": out}
+
+
+def cold_calls(period: float, samples: int = 200) -> dict:
+    """The machine's cost of a call whose code went cold: a numpy add of two (21, 11) arrays and a
+    compiled call that does nothing (numba; absent without it), each timed as the first call after
+    sleeping ``period`` s and again at once; medians in us over ``samples`` sleeps."""
+    a, out = np.ones((21, 11)), np.empty((21, 11))
+    calls = {"numpy add (21 x 11)": lambda: np.add(a, a, out=out)}
+    try:
+        import numba
+    except ImportError:
+        numba = None
+    if numba is not None:
+        noop = numba.njit(lambda x: 0)
+        noop(a)
+        calls["compiled call, no work"] = lambda: noop(a)
+    result = {}
+    for label, call in calls.items():
+        first, again = [], []
+        for _ in range(samples):
+            time.sleep(period)
+            t0 = time.perf_counter_ns()
+            call()
+            t1 = time.perf_counter_ns()
+            call()
+            first.append(t1 - t0)
+            again.append(time.perf_counter_ns() - t1)
+        result[label] = {"after_sleep_us": float(np.median(first) * 1e-3), "again_us": float(np.median(again) * 1e-3)}
+    return result
 
 
 def scaling_scenario(posts: int, walkers: int) -> str:
@@ -231,8 +265,15 @@ def bench_tick(out: Path) -> dict:
                  "as in the daemon, against back to back)"]
     lines += [f"  {mode:<13} {m['ticks']:>5} ticks   median {m['median_us']:.0f} us   p99 {m['p99_us']:.0f} us"
               for mode, m in pace["modes"].items()]
+    back, slept = (pace["modes"][m]["phases_median_us"] for m in ("back to back", "paced"))
+    lines.append(f"  {'phase':<24} {'back to back':>12} {'paced':>8} {'ratio':>6}   (medians, us)")
+    lines += [f"  {p:<24} {back[p]:>12.0f} {slept[p]:>8.0f} {slept[p] / back[p] if back[p] > 0 else np.nan:>6.1f}"
+              for p in back if p in slept]
+    cold = cold_calls(PACED[2])
+    lines.append(f"  the machine: a call after a {PACED[2] * 1e3:.0f} ms sleep, and the same call again at once")
+    lines += [f"  {label:<24} {c['after_sleep_us']:>8.1f} us   again {c['again_us']:.1f} us" for label, c in cold.items()]
     print("\n".join(lines), flush=True)
-    doc = {"breakdown": parts, "scaling": rows, "paced": pace}
+    doc = {"breakdown": parts, "scaling": rows, "paced": pace, "cold_calls": cold}
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench_tick.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
     png = plot(parts, rows, out / "bench_tick.png")

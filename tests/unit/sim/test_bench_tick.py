@@ -67,3 +67,26 @@ def test_paced_ticks_are_timed_a_period_apart_and_back_to_back_ones_are_not(line
     times = np.array(runs["paced"]["times"])
     assert np.all(times > 0.0)
     assert np.median(times) < 0.5 * 0.02           # the tick alone: a timed sleep would reach the period
+
+
+def test_each_phase_is_timed_in_both_paced_modes(line_scenario):
+    """The paced comparison carries every phase's median in both modes, and the phases of a mode
+    add up to no more than its ticks' total."""
+    s = line_scenario("paced_phases", length=20.0)
+    runs = paced(s, "vflpc", 0.0)["modes"]
+    for mode in ("back to back", "paced"):
+        phases = runs[mode]["phases_median_us"]
+        assert {"total", "inputs", "lift", "error model", "solve", REST} <= set(phases)
+        assert all(v >= 0.0 for v in phases.values())
+        assert 0.0 < phases["solve"] < phases["total"] <= runs[mode]["median_us"] * 1.5
+
+
+def test_the_cold_call_probe_times_each_call_after_a_sleep_and_again():
+    from sim.bench.tick import cold_calls
+
+    t0 = time.perf_counter()
+    out = cold_calls(0.002, samples=20)
+    assert time.perf_counter() - t0 >= 20 * 0.002 * len(out)        # it slept before every first call
+    assert "numpy add (21 x 11)" in out
+    for c in out.values():
+        assert 0.0 < c["again_us"] and 0.0 < c["after_sleep_us"] < 2000.0
