@@ -20,8 +20,7 @@ from __future__ import annotations
 
 import math
 
-ROUND = 0   # ObstacleArrays' form codes
-BOX = 1
+from vflpcd.core.safety.obstacle_arrays import ROUND     # ObstacleArrays' form code of a round shape
 
 
 def clearances_loop(pos, yaw, times, offsets, motion, shape, heading, statics, movers, behind, middle, reach,

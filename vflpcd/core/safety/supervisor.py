@@ -343,8 +343,8 @@ class Supervisor:
         pos, yaw, times = np.ascontiguousarray(pos), np.ascontiguousarray(yaw), np.ascontiguousarray(times)
         heading = self._heading(pos, yaw) if not behind and arrays.moving.any() else self._no_heading
         cs, i, cm, j = self._loops.clearances(pos, yaw, times, self.offsets, arrays.motion, arrays.shape,
-                                  np.ascontiguousarray(heading), not movers_only, True, behind, self._middle,
-                                  self.reach, self.cfg.release_margin)
+                                              np.ascontiguousarray(heading), not movers_only, True, behind,
+                                              self._middle, self.reach, self.cfg.release_margin)
         return ((float(cs) - self.radius, arrays.states[i].id) if i >= 0 else (np.inf, ""),
                 (float(cm) - self.radius, arrays.states[j].id) if j >= 0 else (np.inf, ""))
 
