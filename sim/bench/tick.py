@@ -39,11 +39,15 @@ from sim.plot import save_png
 from sim.runner import run_closed_loop
 from vflpcd.config.scenarios import Scenario, line_scenario_toml, load_scenario
 from vflpcd.controllers import make_controller
+from vflpcd.core.control.tick_horizon import CompiledHorizon
 
 PLATFORMS = (("vehicle", "carsim_avoidance"), ("quadrotor", "uav_3d"))
 #: phase name -> (attribute path of the controller method that does it)
+#: (the tick's horizon: its begin builds the problem call by call, ``ProblemHorizon``; a
+#: ``CompiledHorizon``'s solve builds it, solves and clips the command in one compiled call)
 PHASES = (("inputs", "_inputs"), ("guidance check", "_guidance"), ("reference", "_reference"),
-          ("lift", "errors.frame"), ("error model", "errors.problem"), ("barrier", "_barrier"), ("solve", "_solve_with"))
+          ("lift", "errors.frame"), ("error model", "_tick_horizon.begin"), ("barrier", "_barrier"),
+          ("solve", "_tick_horizon.solve"))
 RATE_PHASE = "error model"      # the increment form of the problem (each mode's RateForm.increments)
 REST = "clip, shift, GP sample"
 SCALING = ((0, 0), (10, 0), (20, 0), (40, 0), (10, 2), (10, 4), (10, 8), (40, 8))
@@ -62,18 +66,25 @@ def _owner(obj, path: str):
 
 def timed_phases(controller) -> dict[str, list[float]]:
     """Wrap the phase methods of a VF-LPC controller (and its step) with timers; returns the
-    per-tick seconds of each phase ("total" for the whole step), filled as the controller runs."""
+    per-tick seconds of each phase ("total" for the whole step), filled as the controller runs. A
+    phase run inside another (the increment form, which the call-by-call horizon builds when a solve
+    asks for it) counts in its own phase only."""
     ticks: dict[str, list[float]] = {"total": []}
     current: dict[str, float] = {}
+    nested: list[float] = []        # per open timer, the seconds of the timers run inside it
 
     def wrap(fn, phase):
         @wraps(fn)
         def timed(*a, **k):
+            nested.append(0.0)
             t0 = time.perf_counter_ns()
             try:
                 return fn(*a, **k)
             finally:
-                current[phase] = current.get(phase, 0.0) + (time.perf_counter_ns() - t0) * 1e-9
+                elapsed = (time.perf_counter_ns() - t0) * 1e-9
+                current[phase] = current.get(phase, 0.0) + elapsed - nested.pop()     # its own time only
+                if nested:
+                    nested[-1] += elapsed
         return timed
 
     for phase, path in PHASES:
@@ -112,7 +123,8 @@ def breakdown(scenario_name: str) -> dict:
     record = run_closed_loop(scenario, controller)
     stats = {phase: {"median_us": float(np.median(v) * 1e6), "p99_us": float(np.percentile(v, 99) * 1e6)}
              for phase, v in ticks.items() if v}
-    return {"scenario": scenario.name, "ticks": len(ticks["total"]), "outcome": record.outcome, "phases": stats}
+    return {"scenario": scenario.name, "ticks": len(ticks["total"]), "outcome": record.outcome, "phases": stats,
+            "compiled_horizon": isinstance(controller._tick_horizon, CompiledHorizon)}
 
 
 def paced(scenario: Scenario, name: str, period: float) -> dict:
@@ -247,6 +259,10 @@ def bench_tick(out: Path) -> dict:
         lines.append(f"{phase:<24}" + "".join(f" {c:>24}" for c in cells))
     lines.append("  " + ", ".join(f"{platform}: {part['scenario']} {part['ticks']} ticks, {part['outcome']}"
                                   for platform, part in parts.items()))
+    compiled = [platform for platform, part in parts.items() if part["compiled_horizon"]]
+    if compiled:
+        lines.append(f"  {', '.join(compiled)}: the horizon in one compiled call (tick_horizon.CompiledHorizon): "
+                     "the solve's time holds the error model's problem, its increment form and the clip")
     print("\n".join(lines), flush=True)
     rows = scaling(out / "scaling_scenarios")
     head = (f"{'static':>6} {'movers':>6} {'outcome':<10} {'coll':>4} {'clear m':>7} {'J_MC':>7} {'tick med ms':>11} "

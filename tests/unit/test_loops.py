@@ -55,8 +55,9 @@ def test_the_loop_is_loaded_before_the_first_tick_for_the_types_the_solver_passe
 
 def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
     """A run of VF-LPC with the online GP (its samples tested and folded in, its window, linearisation,
-    GP correction, increment form, command clip and reference rows compiled), and a refit's model
-    coming back from a worker, add no signature to the warmed loops: none compiles in a tick."""
+    GP correction, increment form, command clip, reference rows and horizon compiled), a refit's model
+    coming back from a worker, and a quadrotor's run add no signature to the warmed loops: none
+    compiles in a tick."""
     import dataclasses
     import pickle
 
@@ -68,9 +69,9 @@ def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
 
     gp, tick, ald = loops.gp_add_loop(), loops.tick_loops(), loops.ald_loop()
     compiled = (gp, tick.window, tick.linearisation, tick.correction, tick.increment, tick.command, tick.reference,
-                ald)
+                ald, tick.horizon)
     before = tuple(len(loop.signatures) for loop in compiled)
-    assert before == (1, 1, 1, 1, 2, 1, 1, 1)   # the increment form: a nominal B and a scheduled one
+    assert before == (1, 1, 1, 1, 2, 1, 1, 1, 1)   # the increment form: a nominal B and a scheduled one
     scenario = dataclasses.replace(load_scenario("racing_track"), t_max=6.0)
     ctrl = make_controller("vflpc_ml", scenario)
     run_closed_loop(scenario, ctrl, 0)
@@ -80,8 +81,11 @@ def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
     back.add_sample(np.zeros(back.n_z), np.zeros(back.n_y), gp)
     U = np.zeros((ctrl.N + 1, ctrl.model.n_K))
     ctrl.errors.comp.corrected_next(U[1:], U[:-1], np.zeros((ctrl.N, ctrl.model.n_u)), back, tick.correction)
+    ctrl._tick_horizon.begin(ctrl._last[0], np.zeros(ctrl.model.n_u), back).solve(ctrl.rate, ctrl.solver, None)
     assert ctrl.rate.loop is tick.increment and ctrl._command_loop is tick.command
-    assert ctrl._horizon._loop is tick.reference
+    assert ctrl._horizon._loop is tick.reference and ctrl._tick_horizon.loop is tick.horizon
+    quad = dataclasses.replace(load_scenario("uav_3d"), t_max=1.0)      # its horizon without an increment form
+    run_closed_loop(quad, make_controller("vflpc", quad), 0)
     assert tuple(len(loop.signatures) for loop in compiled) == before
 
 

@@ -51,18 +51,21 @@ def tick_loops():
     from vflpcd.core.control.horizon_reference import strided_rows
     from vflpcd.core.control.rate_kernel import increment_loop
     from vflpcd.core.control.tick_kernel import command_loop, linearisation_loop, window_loop
+    from vflpcd.core.control.horizon_kernel import horizon_command_loop
     from vflpcd.core.dynamics.gp_kernel import corrected_next_loop
 
     _algebra()
     window = _compiled("tick_window", window_loop, _warm_tick_window)
     if window is None:
         return None
+    _horizon_steps()
     return TickLoops(window=window,
                      linearisation=_compiled("tick_linearisation", linearisation_loop, _warm_tick_linearisation),
                      correction=_compiled("tick_gp_correction", corrected_next_loop, _warm_tick_correction),
                      increment=_compiled("tick_increment", increment_loop, _warm_tick_increment),
                      command=_compiled("tick_command", command_loop, _warm_tick_command),
-                     reference=_compiled("tick_reference", strided_rows, _warm_tick_reference))
+                     reference=_compiled("tick_reference", strided_rows, _warm_tick_reference),
+                     horizon=_compiled("tick_horizon", horizon_command_loop, _warm_tick_horizon))
 
 
 @lru_cache(maxsize=1)
@@ -212,6 +215,19 @@ def _algebra() -> bool:
 
 
 @lru_cache(maxsize=1)
+def _horizon_steps() -> bool:
+    """Register the loops that ``horizon_kernel.horizon_command_loop`` calls in turn (the tick's
+    linearisation, GP correction, increment fill and command, Eb-RHRL's iterations) with numba, so
+    that they compile into it; False without numba."""
+    from vflpcd.core.control.ebrhrl_kernel import solve_loop
+    from vflpcd.core.control.rate_kernel import increment_loop
+    from vflpcd.core.control.tick_kernel import command_loop, linearisation_loop
+    from vflpcd.core.dynamics.gp_kernel import corrected_next_loop
+
+    return _jitable(linearisation_loop, corrected_next_loop, increment_loop, solve_loop, command_loop)
+
+
+@lru_cache(maxsize=1)
 def _path_window() -> bool:
     """Register ``path_kernel.window_runs``, which the path projection's loop calls, with numba;
     False without numba."""
@@ -311,10 +327,29 @@ def _warm_tick_increment(loop) -> None:
 
 
 def _warm_tick_command(loop) -> None:
-    """Compile (or load) the loop now, for the argument types ``VFLPC._clipped_command`` passes."""
+    """Compile (or load) the loop now, for the argument types ``tick_horizon.clipped_command`` passes."""
     import numpy as np
 
     loop(np.zeros(1), np.zeros(1), -np.ones(1), np.ones(1), np.zeros(1), np.ones(1))
+
+
+def _warm_tick_horizon(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``CompiledHorizon.solve`` passes (one
+    compiled form with a GP and without: ``tick_horizon.no_gp_arguments``), on a model of two
+    observables, one input and one step (the nominal B broadcast along two)."""
+    import numpy as np
+
+    from vflpcd.core.control.tick_horizon import no_gp_arguments
+    from vflpcd.core.dynamics.compensation import KoopmanCompensation
+
+    z = np.zeros
+    comp = KoopmanCompensation(np.eye(2), np.ones((2, 1)), np.ones((2, 1)), [0])
+    for gp in (no_gp_arguments(comp.n_z, 2), (True, *comp.mean_arguments(_tiny_gp()))):
+        loop(z(2), z((2, 2)), np.eye(2), z((2, 1)), np.ones((1, 1)), 1, -np.ones(1), np.ones(1), z(1), np.ones(1),
+             *gp, True, np.broadcast_to(np.ones((1, 1)), (2, 1, 1)), z(1, np.int64), z((1, 2)), z(2), z((1, 1)),
+             z((1, 1)), z((1, 2, 2)), z((1, 2, 1)), z((1, 1, 2)), np.eye(2), np.ones((1, 1)), np.eye(2),
+             np.ones((1, 1, 1)), 1.0, z((1, 1, 1)), z((2, 1, 2)), z(1), z((1, 2)), z(2), z(1, np.int64), z((2, 1)),
+             z((0, 2, 1)), z((0, 2, 1)), z(0), 1.0, 1.0, 1, 1e-8, 1e-2, False)
 
 
 def _warm_tick_reference(loop) -> None:

@@ -47,6 +47,7 @@ from vflpcd.core.control.game_region import threat_at
 from vflpcd.core.control.horizon_reference import HorizonReference
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.rate import RateForm
+from vflpcd.core.control.tick_horizon import CompiledHorizon, ProblemHorizon
 from vflpcd.core.dynamics.compensation import OnlineCompensator, RefitJob
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, PoseLayout
 from vflpcd.core.guidance.implicit import GuidanceError
@@ -425,6 +426,7 @@ class VFLPC(ControllerBase):
                                          for v in params.slow_speeds if v < params.light_speeds[0])
         self.solver, self.compensator = solver, compensator
         self._cruise_mode = (self.rate, solver)
+        self._tick_horizon = CompiledHorizon(em) if CompiledHorizon.applies(em) else ProblemHorizon(em, self._command_loop)
         self.plan_gate = None          # set by the safety guard (vflpcd.core.safety): refuses undrivable replans
         self.planning, self.jobs = self, self
         self.body_radius, self.safety_margin = float(body_radius), float(safety_margin)
@@ -485,15 +487,14 @@ class VFLPC(ControllerBase):
         u_prev = self._u_prev if self._u_prev is not None else np.clip(np.zeros(self.model.n_u), self.limits.u_min,
                                                                           self.limits.u_max)
         gp = self.compensator.model if self.compensator is not None else None
-        problem = self.errors.problem(frame, u_prev, gp)
+        horizon = self._tick_horizon.begin(frame, u_prev, gp)
         barrier = self._barrier(frame, ref, pos, vel, t, obstacles)
         speed = vector_norm(vel)
         self._select_mode(speed)
         if self.rate is not None:
-            u_tilde0 = self._solve_increments(problem, barrier, t, speed, frame)
+            u = self._solve_increments(horizon, barrier, t, speed, frame)
         else:
-            u_tilde0 = self._solve(problem, barrier, self.errors.K_terminal)
-        u = self._clipped_command(problem.u_ref[0], u_tilde0, u_prev)
+            u = horizon.command(None, self._solve(horizon, None, barrier))
         self.solver.shift()
         self._u_prev = u
         if observe_now:
@@ -501,15 +502,6 @@ class VFLPC(ControllerBase):
                 self._sample = (self._last, frame)
             self._last = (frame, u)
         return u
-
-    def _clipped_command(self, u_ref0: np.ndarray, u_tilde0: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
-        """u = u_r,0 + u~_0 within the magnitude limits, then within the rate limit of u_prev
-        (``tick_kernel.command_loop`` compiled, the same numbers)."""
-        lim = self.limits
-        if self._command_loop is not None:
-            return self._command_loop(u_ref0, u_tilde0, lim.u_min, lim.u_max, u_prev, lim.du_max)
-        u = np.minimum(np.maximum(u_ref0 + u_tilde0, lim.u_min), lim.u_max)            # magnitude limits
-        return np.minimum(np.maximum(u, u_prev - lim.du_max), u_prev + lim.du_max)     # rate limits
 
     def settle(self) -> None:
         """Offer the transition the last step saw (the previous sampled lifted state, the command
@@ -782,9 +774,9 @@ class VFLPC(ControllerBase):
             return abs(float(frame.x_r[0, self._pos_index[1]]))
         return vector_norm(frame.x_r[0, self._pos_index])
 
-    def _solve_increments(self, problem: HorizonProblem, barrier: HorizonBarrier, t: float,
-                          speed: float, frame: TickFrame) -> np.ndarray:
-        """u~_0 from the increment form of ``problem`` (rate.py) in the tick's mode. Cruising with
+    def _solve_increments(self, horizon, barrier: HorizonBarrier, t: float, speed: float,
+                          frame: TickFrame) -> np.ndarray:
+        """The command u of the increment form of the tick's ``horizon`` (rate.py; ``tick_horizon``) in the tick's mode. Cruising with
         ``R_rate_light`` given, at a ``speed`` (the body's, m/s) within ``light_speeds`` (where the
         model's steering response is close to the vehicle's) and on the reference (``_offset`` of
         ``frame``, within the first of ``light_offsets`` to take the light weights up, within the second to
@@ -808,17 +800,15 @@ class VFLPC(ControllerBase):
             rate, solver = self._light_mode
             if not self._light:
                 solver.reset()
-            increment, bounds = rate.increments(problem)
-            v = self._solve_with(solver, increment, barrier, bounds)
+            v = self._solve_with(solver, horizon, rate, barrier, bounded=True)
             if v is not None and self.last_info.saturated <= LIGHT_SATURATION * self.N:
                 self._light = True
-                return rate.deviation(increment.x0, v[0])
+                return horizon.command(rate, v[0])
             self._heavy_until = t + self.params.light_hold
         if self._light:                # back on the heavy weights: their solver starts afresh
             self.solver.reset()
             self._light = False
-        increment = self.rate.problem(problem)
-        return self.rate.deviation(increment.x0, self._solve(increment, barrier, self.rate.K_terminal))
+        return horizon.command(self.rate, self._solve(horizon, self.rate, barrier))
 
     def _barrier(self, frame: TickFrame, ref: np.ndarray, pos, vel, t: float, obstacles) -> HorizonBarrier:
         """The barrier of the movers in E_p (module docstring, step 4); ``ref``: the world reference
@@ -852,29 +842,32 @@ class VFLPC(ControllerBase):
         return HorizonBarrier(self._pos_index, frame.x_r[:, self._pos_index], np.array(xs), np.array(ns),
                               np.full(len(chosen), p.mu), p.barrier_length)
 
-    def _solve(self, problem: HorizonProblem, barrier: HorizonBarrier, K_terminal: np.ndarray) -> np.ndarray:
-        """The solver's first input of ``problem``. On a failure the plan of the last solve that
+    def _solve(self, horizon, rate: RateForm | None, barrier: HorizonBarrier) -> np.ndarray:
+        """The solver's first input of the tick's ``horizon`` (in ``rate``'s increment form, or the
+        problem itself when None). On a failure the plan of the last solve that
         succeeded goes on, a step a tick since it was solved (its inputs are deviations from the
         time-indexed reference, which moves on with it), for as many ticks as it has steps; then the terminal LQR
-        law -K_terminal x0. The LQR law of the lifted error alone knows nothing of the obstacles and
+        law -K_terminal x0 (the rate form's, or the error model's). The LQR law of the lifted error alone knows nothing of the obstacles and
         of the rate limits: the Koopman-MPC, whose OSQP met its iteration cap on three ticks while
         it passed the slow car of carsim_avoidance, turned into the slow car's lane on it at
         0.33 rad of steering and +3 m/s^2, where its last plan drove on past it."""
-        u_tilde = self._solve_with(self.solver, problem, barrier)
+        u_tilde = self._solve_with(self.solver, horizon, rate, barrier)
         if u_tilde is not None:
             self._held, self._held_tick = u_tilde, self._ticks
             return u_tilde[0]
         k = self._ticks - self._held_tick
         if self._held is not None and 0 < k < len(self._held):
             return self._held[k]
-        return -K_terminal @ problem.x0
+        K_terminal = self.errors.K_terminal if rate is None else rate.K_terminal
+        return -K_terminal @ horizon.start(rate)
 
-    def _solve_with(self, solver, problem: HorizonProblem, barrier: HorizonBarrier,
-                    bounds: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray | None:
-        """``solver``'s plan u~ (N, n_u) of ``problem`` (``bounds`` on it: an ``EbRHRL``'s); None
-        (counted in ``fallbacks``, the solver reset) when it fails or diverges."""
+    def _solve_with(self, solver, horizon, rate: RateForm | None, barrier: HorizonBarrier,
+                    bounded: bool = False) -> np.ndarray | None:
+        """``solver``'s plan u~ (N, n_u) of the tick's ``horizon`` in ``rate``'s form (``bounded``: its
+        increments within the rate limit, an ``EbRHRL``'s); None (counted in ``fallbacks``, the solver
+        reset) when it fails or diverges."""
         try:
-            u_tilde, info = solver.solve(problem, barrier) if bounds is None else solver.solve(problem, barrier, bounds)
+            u_tilde, info = horizon.solve(rate, solver, barrier, bounded)
             self.last_info = info
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             log.warning("event=solver_error reason=%s", exc)

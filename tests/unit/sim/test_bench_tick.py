@@ -8,6 +8,7 @@ from sim.bench.tick import REST, paced, scaling_scenario, timed_phases
 from sim.runner import run_closed_loop
 from vflpcd.config.scenarios import load_scenario
 from vflpcd.controllers import make_controller
+from vflpcd.core.control.tick_horizon import ProblemHorizon
 
 
 def test_the_phases_of_every_tick_add_up_to_its_total(line_scenario):
@@ -26,11 +27,12 @@ def test_the_phases_of_every_tick_add_up_to_its_total(line_scenario):
 
 
 def test_the_error_model_phase_times_every_modes_increment_form(line_scenario):
-    """The increment form (``RateForm.increments``, which ``problem`` calls) of every weight mode a
-    tick may solve with (cruise, light, threat, the slow bands) is timed in the error model's phase,
-    not left in the rest."""
+    """On the call-by-call horizon, the increment form (``RateForm.increments``, which its solve asks
+    for) of every weight mode a tick may solve with (cruise, light, threat, the slow bands) is timed
+    in the error model's phase, not in the solve's or the rest."""
     s = line_scenario("tick_modes", length=30.0)
     ctrl = make_controller("vflpc", s)
+    ctrl._tick_horizon = ProblemHorizon(ctrl.errors, ctrl._command_loop)
     forms = [m[0] for m in (ctrl._cruise_mode, ctrl._light_mode, ctrl._threat_mode, *(m for _, m in ctrl._slow_modes))
              if m is not None]
     assert len(forms) >= 3
@@ -38,6 +40,9 @@ def test_the_error_model_phase_times_every_modes_increment_form(line_scenario):
     assert all(hasattr(f.increments, "__wrapped__") for f in forms)
     run_closed_loop(s, ctrl)
     assert np.all(np.array(ticks["error model"]) > 0.0)
+    phases = [p for p in ticks if p != "total"]
+    np.testing.assert_allclose(np.sum([ticks[p] for p in phases], axis=0), ticks["total"], rtol=1e-9, atol=1e-12)
+    assert np.all(np.array(ticks[REST]) >= 0.0)           # no phase counted twice
 
 
 def test_the_scaling_road_has_its_posts_beside_the_lane_and_its_walkers_crossing(tmp_path):

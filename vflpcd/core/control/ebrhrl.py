@@ -209,13 +209,17 @@ class EbRHRL:
         return x, u, phi
 
     def closed_loop(self, problem: HorizonProblem) -> np.ndarray:
-        """A_tau - B_tau K_tau (N, n, n): the error model under the prior (kept while the problem's
-        A and B are the same arrays as at the last call)."""
+        """A_tau - B_tau K_tau (N, n, n): the error model under the prior (``closed_loop_of``)."""
+        return self.closed_loop_of(problem.A, problem.B)
+
+    def closed_loop_of(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """A_tau - B_tau K_tau (N, n, n) of A (N, n, n), B (N, n, n_u) (kept while they are the same
+        arrays as at the last call)."""
         last = self._closed
-        if last is not None and last[0] is problem.A and last[1] is problem.B:
+        if last is not None and last[0] is A and last[1] is B:
             return last[2]
-        A_cl = np.ascontiguousarray(problem.A - problem.B @ self.K)
-        self._closed = (problem.A, problem.B, A_cl)
+        A_cl = np.ascontiguousarray(A - B @ self.K)
+        self._closed = (A, B, A_cl)
         return A_cl
 
     def costates(self, problem: HorizonProblem, x: np.ndarray, u: np.ndarray,
@@ -285,19 +289,29 @@ class EbRHRL:
     def _solve_compiled(self, problem: HorizonProblem, barrier: HorizonBarrier | None,
                         bounds: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, SolveInfo]:
         """``solve`` by the compiled ``ebrhrl_kernel.solve_loop`` (the same iterations)."""
-        f = self.features
         c = np.ascontiguousarray
-        if barrier is not None and barrier.count:
-            pos, p_ref, x_p, normal, mu, length = (c(barrier.pos_index, np.int64), c(barrier.p_ref, float),
-                                                   c(barrier.x_p, float), c(barrier.normal, float),
-                                                   c(barrier.mu, float), float(barrier.length))
-        else:
-            pos, p_ref, x_p, normal, mu, length = self._no_barrier
         lo, hi = bounds if bounds is not None else self._open
         target, iterations, eps_a, eps_c, saturated = self.loop(
-            self.closed_loop(problem), c(problem.B), c(problem.c), c(problem.x0), self.K, self.Q, self._R2,
-            self.P, self.M_inv, self.gamma, self.W_a, self.W_c, f._a, f._b, f._h, pos, p_ref,
-            x_p, normal, mu, length, self.eta_a, self.i_max, self.tol, PHI_FLOOR, bounds is not None, lo, hi)
+            self.closed_loop(problem), c(problem.B), c(problem.c), c(problem.x0), *self.loop_arguments(barrier),
+            bounds is not None, lo, hi)
+        return target, self.loop_info(iterations, eps_a, eps_c, saturated)
+
+    def loop_arguments(self, barrier: HorizonBarrier | None) -> tuple:
+        """``ebrhrl_kernel.solve_loop``'s arguments from K to phi_floor: the prior, the weights (updated
+        in place), the features, ``barrier``'s arrays (none when it has no threat) and the settings."""
+        f = self.features
+        if barrier is not None and barrier.count:
+            c = np.ascontiguousarray
+            shield = (c(barrier.pos_index, np.int64), c(barrier.p_ref, float), c(barrier.x_p, float),
+                      c(barrier.normal, float), c(barrier.mu, float), float(barrier.length))
+        else:
+            shield = self._no_barrier
+        return (self.K, self.Q, self._R2, self.P, self.M_inv, self.gamma, self.W_a, self.W_c, f._a, f._b, f._h,
+                *shield, self.eta_a, self.i_max, self.tol, PHI_FLOOR)
+
+    def loop_info(self, iterations: int, eps_a: float, eps_c: float, saturated: int) -> SolveInfo:
+        """The ``SolveInfo`` of what ``solve_loop`` returned; raises ValueError when its bounds crossed
+        (iterations -1)."""
         if iterations < 0:
             raise ValueError(BOUNDS_CROSSED)
-        return target, SolveInfo(int(iterations), bool(eps_a <= self.tol), float(eps_a), float(eps_c), int(saturated))
+        return SolveInfo(int(iterations), bool(eps_a <= self.tol), float(eps_a), float(eps_c), int(saturated))

@@ -48,8 +48,9 @@ class TickLoops:
     """The tick's loops, compiled: ``tick_kernel``'s ``window_loop`` and ``linearisation_loop``,
     ``gp_kernel.corrected_next_loop`` (the GP's mean in c_tau), ``rate_kernel.increment_loop`` (the
     increment form's fill, ``RateForm.increments``), ``tick_kernel.command_loop`` (the command
-    clipped into the limits, ``VFLPC._clipped_command``) and ``horizon_reference.strided_rows`` (the
-    horizon's reference rows, ``HorizonReference.at``)."""
+    clipped into the limits, ``tick_horizon.clipped_command``), ``horizon_reference.strided_rows`` (the
+    horizon's reference rows, ``HorizonReference.at``) and ``horizon_kernel.horizon_command_loop``
+    (the problem, its solve and the command in one call, ``tick_horizon.CompiledHorizon``)."""
 
     window: Callable
     linearisation: Callable
@@ -57,6 +58,7 @@ class TickLoops:
     increment: Callable | None = None
     command: Callable | None = None
     reference: Callable | None = None
+    horizon: Callable | None = None
 
 
 @dataclass(frozen=True)

@@ -96,12 +96,12 @@ class RateForm:
         is the same object while p's A, B and half-planes are the same arrays (the nominal
         linearisation's): nothing is allocated at a tick."""
         N, n = p.N, self.n
-        work = self._work.get(N) or self._work.setdefault(N, _Work.of(N, n, self.n_u, self.commanded))
+        work = self.work(N)
         if self.loop is not None:
             self.loop(p.c, p.B, p.u_ref, p.x0, p.u_prev, p.du_max, work.commanded, work.c, work.x0, work.lo, work.hi)
         else:
             _increment_fill(p, self.commanded, work)
-        A, B = self._augmented(p.A, p.B)
+        A, B = self.augmented(p.A, p.B)
         blank = self._blank.get(N) or self._blank.setdefault(N, _blank(N, n, self.n_u))
         G = blank.G if p.G.shape == (N + 1, 0, n) else np.concatenate([p.G, np.zeros(p.G.shape[:2] + (self.n_u,))], axis=2)
         z = work.problem
@@ -111,7 +111,11 @@ class RateForm:
                                               u_max=blank.upper, du_max=blank.upper, u_prev=blank.u_prev, G=G, g=p.g)
         return z, (work.lo, work.hi)
 
-    def _augmented(self, A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def work(self, N: int) -> "_Work":
+        """The arrays an N-step increment problem is written into at every tick (``_Work``)."""
+        return self._work.get(N) or self._work.setdefault(N, _Work.of(N, self.n, self.n_u, self.commanded))
+
+    def augmented(self, A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """augment_pair(A, B), kept while the problem's A and B are the same arrays (the nominal
         linearisation hands out the same ones every tick)."""
         if self._pair[0] is A and self._pair[1] is B:

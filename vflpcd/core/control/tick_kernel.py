@@ -8,7 +8,7 @@ numbers to 1e-12, tests/unit/core/control/test_tick_kernel.py):
 * ``linearisation_loop``: the nominal linearisation (``ErrorModel._linearisation``):
   u_r,tau = pinv(B_x) (x_r,tau+1 - [A Upsilon_r,tau]_{1..n_x}) clipped into [u_min, u_max], and
   next_tau = A Upsilon_r,tau + B u_r,tau;
-* ``command_loop``: the tick's command (``VFLPC._clipped_command``), u = u_r,0 + u~_0 clipped into the
+* ``command_loop``: the tick's command (``tick_horizon.clipped_command``), u = u_r,0 + u~_0 clipped into the
   magnitude limits and then within du_max of the previous command, with numpy's maximum and
   minimum (a NaN stays NaN).
 

@@ -92,14 +92,20 @@ class KoopmanCompensation:
         nominal next lifted states corrected by the GP's mean (a new array). ``loop``:
         ``gp_kernel.corrected_next_loop`` compiled (the same numbers to 1e-12), None for numpy."""
         if loop is not None:          # the loop does not check its indices (numpy's shape errors): checked here
-            if gp.Zm.shape[1] != self.n_z or gp.alpha.shape[0] != self.n_y:
-                raise ValueError(f"a GP of {gp.Zm.shape[1]} inputs and {gp.alpha.shape[0]} outputs cannot "
-                                 f"correct this model ({self.n_z} inputs, {self.n_y} outputs)")
             if U.shape != (len(nxt), self.n_K) or u.shape != (len(nxt), self.n_u) or nxt.shape[1:] != (self.n_K,):
                 raise ValueError(f"expected nxt and U (N, {self.n_K}), u (N, {self.n_u}); "
                                  f"got {nxt.shape}, {U.shape}, {u.shape}")
-            return loop(nxt, U, u, self.z_index, gp.Zm, gp.hyp.sf2, gp._nh_inv_ell2, gp.alpha, self.B_d)
+            return loop(nxt, U, u, *self.mean_arguments(gp))
         return nxt + gp.means(self.gp_input(U, u)) @ self.B_d.T
+
+    def mean_arguments(self, gp: FITCGP) -> tuple:
+        """``gp_kernel.corrected_next_loop``'s arguments after nxt, U and u: the GP's input columns,
+        its arrays and B_d. Raises ValueError for a GP of another input or output count (the loop
+        does not check its indices)."""
+        if gp.Zm.shape[1] != self.n_z or gp.alpha.shape[0] != self.n_y:
+            raise ValueError(f"a GP of {gp.Zm.shape[1]} inputs and {gp.alpha.shape[0]} outputs cannot "
+                             f"correct this model ({self.n_z} inputs, {self.n_y} outputs)")
+        return self.z_index, gp.Zm, gp.hyp.sf2, gp._nh_inv_ell2, gp.alpha, self.B_d
 
     def nominal(self, U: np.ndarray, u: np.ndarray) -> np.ndarray:
         """A U + (B + s B_s) u for U (..., n_K), u (..., n_u) -> (..., n_K)."""

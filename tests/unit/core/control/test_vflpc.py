@@ -108,17 +108,25 @@ def test_a_failed_solve_goes_on_with_the_last_plan_before_the_terminal_lqr(strai
         def reset(self):
             pass
 
+    class Horizon:                                   # a tick's horizon: its problem solved, its start
+        problem = dataclasses.make_dataclass("P", ["x0", "N", "n_u"])(np.ones(3), ctrl.N, 2)
+
+        def solve(self, rate, solver, barrier, bounded=False):
+            return solver.solve(self.problem, barrier)
+
+        def start(self, rate):
+            return self.problem.x0
+
     ctrl.solver = Flaky()
-    problem = dataclasses.make_dataclass("P", ["x0", "N", "n_u"])(np.ones(3), ctrl.N, 2)
-    K = np.full((2, 3), 1.0)
+    rate = dataclasses.make_dataclass("Rate", ["K_terminal"])(np.full((2, 3), 1.0))
     ctrl._ticks = 7
-    assert ctrl._solve(problem, None, K).tolist() == plan[0].tolist()
+    assert ctrl._solve(Horizon(), rate, None).tolist() == plan[0].tolist()
     Flaky.ok = False
     for k in range(1, ctrl.N):                       # the plan's step k, k ticks after it was solved
         ctrl._ticks = 7 + k
-        assert ctrl._solve(problem, None, K).tolist() == plan[k].tolist()
-    ctrl._ticks = 7 + ctrl.N                         # its steps spent: the terminal LQR law
-    assert ctrl._solve(problem, None, K).tolist() == [-3.0, -3.0]
+        assert ctrl._solve(Horizon(), rate, None).tolist() == plan[k].tolist()
+    ctrl._ticks = 7 + ctrl.N                         # its steps spent: the rate form's terminal LQR law
+    assert ctrl._solve(Horizon(), rate, None).tolist() == [-3.0, -3.0]
     assert ctrl.fallbacks == ctrl.N
 
 

@@ -279,15 +279,19 @@ def test_light_weights_keep_the_rate_limit_by_their_bounds_and_rest_when_they_ri
     plant = make_plant(straight, 0)
     light_solver = ctrl._light_mode[1]
     assert ctrl.params.R_rate_light[1, 1] < ctrl.params.R_rate[1, 1]
-    real = light_solver.solve
+    horizon = ctrl._tick_horizon                    # the tick's solves, compiled or call by call
+    real = horizon.solve
     seen = []
 
-    def recorded(problem, barrier, bounds):
-        v, info = real(problem, barrier, bounds)
-        seen.append((v, bounds))
+    def recorded(rate, solver, barrier, bounded=False):
+        v, info = real(rate, solver, barrier, bounded)
+        if solver is light_solver:                  # its bounds: the rate form's, rewritten every tick
+            assert bounded
+            work = rate.work(ctrl.N)
+            seen.append((v.copy(), (work.lo.copy(), work.hi.copy())))
         return v, info
 
-    light_solver.solve = recorded
+    horizon.solve = recorded
     for k in range(40):
         u = ctrl.step(plant.state, k * DT)
         plant.step(u, DT)
@@ -299,12 +303,14 @@ def test_light_weights_keep_the_rate_limit_by_their_bounds_and_rest_when_they_ri
     assert np.isfinite(du) and np.allclose(hi[:, 1] - lo[:, 1], 2 * du)     # the steering's bounds: the rate limit
     riding = {"calls": 0, "saturated": int(LIGHT_SATURATION * ctrl.N) + 1}
 
-    def rides(problem, barrier, bounds):
+    def rides(rate, solver, barrier, bounded=False):
+        v, info = real(rate, solver, barrier, bounded)
+        if solver is not light_solver:
+            return v, info
         riding["calls"] += 1
-        v, info = real(problem, barrier, bounds)
         return v, dataclasses.replace(info, saturated=riding["saturated"])
 
-    light_solver.solve = rides
+    horizon.solve = rides
     t = 40 * DT
     ctrl.step(plant.state, t)
     assert riding["calls"] == 1 and not ctrl._light and ctrl._heavy_until == pytest.approx(t + ctrl.params.light_hold)
@@ -400,14 +406,14 @@ def test_light_weights_only_within_their_speed_band(straight, monkeypatch):
         ctrl = make_vflpc(straight)
         plant = make_plant(straight, 0)
         tried = {"calls": 0}
-        solver = ctrl._light_mode[1]
-        real = solver.solve
+        light, horizon = ctrl._light_mode[1], ctrl._tick_horizon
+        real = horizon.solve
 
-        def counted(problem, barrier, bounds, real=real):
-            tried["calls"] += 1
-            return real(problem, barrier, bounds)
+        def counted(rate, solver, barrier, bounded=False, real=real, light=light):
+            tried["calls"] += solver is light
+            return real(rate, solver, barrier, bounded)
 
-        solver.solve = counted
+        horizon.solve = counted
         for k in range(20):
             plant.step(ctrl.step(plant.state, k * DT), DT)
         assert ctrl._light is expect and (tried["calls"] > 0) is expect
