@@ -452,6 +452,7 @@ class VFLPC(ControllerBase):
         self._u_prev: np.ndarray | None = None
         self._last: tuple[TickFrame, np.ndarray] | None = None
         self._sample: tuple[tuple[TickFrame, np.ndarray], TickFrame] | None = None   # for ``settle``
+        self._unshifted = None          # the solver whose weights ``settle`` shifts
         self._since_refit = 0
         self._pending: ReplanJob | None = None
         self._asked: tuple[ReplanJob, dict[str, np.ndarray], int] | None = None
@@ -495,7 +496,7 @@ class VFLPC(ControllerBase):
             u = self._solve_increments(horizon, barrier, t, speed, frame)
         else:
             u = horizon.command(None, self._solve(horizon, None, barrier))
-        self.solver.shift()
+        self._unshifted = self.solver           # its warm start shifted in ``settle``
         self._u_prev = u
         if observe_now:
             if self.compensator is not None and self._last is not None:
@@ -504,12 +505,16 @@ class VFLPC(ControllerBase):
         return u
 
     def settle(self) -> None:
-        """Offer the transition the last step saw (the previous sampled lifted state, the command
+        """Shift the last step's solver's weights one step along the horizon (its warm start for the
+        next tick), and offer the transition the last step saw (the previous sampled lifted state, the command
         applied there, the current state in that window frame) to the GP: work the command does not
         wait for, done after it is sent (``ControllerBase.settle``), else at the next step's start.
         The GP of a step is the one before its own transition's sample (the sample is folded in
         before the next step), and the command goes out without waiting for the sample's lift,
         residual, dictionary test and rank-one update (a quarter of a learning tick)."""
+        solver, self._unshifted = self._unshifted, None
+        if solver is not None:
+            solver.shift()
         sample, self._sample = self._sample, None
         if sample is not None:
             self._observe(*sample)

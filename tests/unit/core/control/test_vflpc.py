@@ -171,3 +171,25 @@ def test_the_gp_sample_of_a_step_is_taken_after_its_command_by_settle_or_at_the_
     assert without[-1][1] == with_settle[-1][2] - 1                                 # the last one still pending
     np.testing.assert_array_equal(unsettled, settled)
     assert np.all(settled[FIT_AT + 2:] != plain[FIT_AT + 2:])                      # the fitted GP steers them
+
+
+def test_the_solvers_warm_start_is_shifted_after_the_command_once(straight):
+    """The step's solver's weights move one step along the horizon in ``settle`` (after the command,
+    before the next solve), once; a step whose settle was not called shifts them first."""
+    ctrl = make_vflpc(straight)
+    plant = make_plant(straight, 0)
+    ctrl.step(plant.state, 0.0)
+    solver = ctrl.solver
+    solver.W_a[:] = np.random.default_rng(0).normal(size=solver.W_a.shape)
+    W = solver.W_a.copy()
+    ctrl.settle()
+    assert np.array_equal(solver.W_a[:-1], W[1:]) and np.array_equal(solver.W_a[-1], W[-1])
+    ctrl.settle()                                    # nothing left to shift
+    assert np.array_equal(solver.W_a[:-1], W[1:])
+    ctrl.step(plant.state, ctrl.dt)
+    solver.W_a[:] = W
+    shifted = []
+    real = solver.shift
+    solver.shift = lambda: shifted.append(True) or real()
+    ctrl.step(plant.state, 2 * ctrl.dt)              # its settle, left out, runs before the solve
+    assert shifted == [True]
