@@ -449,6 +449,7 @@ class VFLPC(ControllerBase):
         self._ticks = 0
         self._signature: dict[str, list[float]] = {}
         self._s = None
+        self._unprojected = None        # the last step's position, not yet projected (``_arc_length``)
         self._u_prev: np.ndarray | None = None
         self._last: tuple[TickFrame, np.ndarray] | None = None
         self._sample: tuple[tuple[TickFrame, np.ndarray], TickFrame] | None = None   # for ``settle``
@@ -506,7 +507,7 @@ class VFLPC(ControllerBase):
 
     def settle(self) -> None:
         """Shift the last step's solver's weights one step along the horizon (its warm start for the
-        next tick), and offer the transition the last step saw (the previous sampled lifted state, the command
+        next tick), find the path's arc length of its position (``_arc_length``), and offer the transition the last step saw (the previous sampled lifted state, the command
         applied there, the current state in that window frame) to the GP: work the command does not
         wait for, done after it is sent (``ControllerBase.settle``), else at the next step's start.
         The GP of a step is the one before its own transition's sample (the sample is folded in
@@ -515,6 +516,7 @@ class VFLPC(ControllerBase):
         solver, self._unshifted = self._unshifted, None
         if solver is not None:
             solver.shift()
+        self._arc_length()
         sample, self._sample = self._sample, None
         if sample is not None:
             self._observe(*sample)
@@ -548,7 +550,7 @@ class VFLPC(ControllerBase):
         if self._last_inputs is None:
             return None
         pos, vel, heading, obstacles = self._last_inputs
-        return ReplanJob(self._s, pos, vel, heading, t, obstacles)
+        return ReplanJob(self._arc_length(), pos, vel, heading, t, obstacles)
 
     def install_plan(self, job: ReplanJob, result: PlanResult) -> None:
         """Take a finished replan (between two ticks); the next step uses it, joined to the robot
@@ -635,10 +637,20 @@ class VFLPC(ControllerBase):
         if obstacles:
             _check_obstacles(obstacles, self.dim)
         pos, vel = state[self._pos_slice], self._velocity(values)
-        self._s = self.planner.path.arc_length_of(pos, self._s, loop=self._path_loop)
+        self._unprojected = pos                 # its arc length when a replan asks for it, else in ``settle``
         heading = values[self.errors.layout.heading] if self.dim == 2 else None
         self._last_inputs = (pos, vel, heading, obstacles)
         return state, obstacles, pos, vel
+
+    def _arc_length(self) -> float | None:
+        """The path's arc length s of the last step's position (None before the first step),
+        searched near the one before it (``ReferencePath.arc_length_of``): a replan's start. The
+        command does not wait for it: it is found when a replan asks for it, else in ``settle``, so
+        every step's position is projected once and in turn."""
+        if self._unprojected is not None:
+            self._s = self.planner.path.arc_length_of(self._unprojected, self._s, loop=self._path_loop)
+            self._unprojected = None
+        return self._s
 
     def _course(self, state: np.ndarray, vel: np.ndarray) -> float:
         """The direction a replan leaves the body along: its velocity's (the course angle) when it
@@ -688,7 +700,7 @@ class VFLPC(ControllerBase):
         if np.isfinite(self._retry_at):
             self._retry_at = t + UNDRIVABLE_RETRY
         heading = self._course(state, vel) if self.dim == 2 else None
-        job = ReplanJob(self._s, pos, vel, heading, t, obstacles)
+        job = ReplanJob(self._arc_length(), pos, vel, heading, t, obstacles)
         if plan is None:
             self.install_plan(job, plan_job(self.planner, job))   # no reference yet: plan at once
         else:
@@ -744,7 +756,7 @@ class VFLPC(ControllerBase):
         if self._road_bend is None:
             return None
         traj, path = plan.trajectory, self.planner.path
-        s0 = path.arc_length_of(traj.pos[0], self._s)
+        s0 = path.arc_length_of(traj.pos[0], self._arc_length())
         bend = np.interp(path.wrap_s(s0 + traj.s - traj.s[0]), path.s, self._road_bend)
         return self._body.slip_angle(bend, traj.v) if np.any(bend) else None
 

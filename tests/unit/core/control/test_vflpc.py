@@ -193,3 +193,27 @@ def test_the_solvers_warm_start_is_shifted_after_the_command_once(straight):
     solver.shift = lambda: shifted.append(True) or real()
     ctrl.step(plant.state, 2 * ctrl.dt)              # its settle, left out, runs before the solve
     assert shifted == [True]
+
+
+def test_each_steps_arc_length_is_found_once_after_its_command_or_when_a_replan_asks(straight):
+    """The path's arc length of a step's position (a replan's start) is not searched before the
+    command: ``settle`` finds it, searching near the last one; a replan asked before that finds it."""
+    ctrl = make_vflpc(straight)
+    plant = make_plant(straight, 0)
+    path = ctrl.planner.path
+    u = ctrl.step(plant.state, 0.0)
+    ctrl.settle()
+    for k in range(1, 6):
+        plant.step(u, ctrl.dt)
+        before = ctrl._s
+        u = ctrl.step(plant.state, k * ctrl.dt)
+        assert ctrl._s == before                                  # the command did not wait for it
+        expect = path.arc_length_of(plant.state[:2], before, loop=ctrl._path_loop)
+        if k % 2:
+            ctrl.settle()
+            assert ctrl._s == expect and ctrl.take_replan(force_at=k * ctrl.dt).s == expect
+        else:                                                     # a replan before the settle
+            assert ctrl.take_replan(force_at=k * ctrl.dt).s == expect
+            ctrl.settle()
+            assert ctrl._s == expect                              # found once
+    assert expect > 1.0
