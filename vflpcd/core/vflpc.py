@@ -450,6 +450,7 @@ class VFLPC(ControllerBase):
         self._signature: dict[str, list[float]] = {}
         self._s = None
         self._unprojected = None        # the last step's position, not yet projected (``_arc_length``)
+        self._unguided = None           # the last step's inputs, not yet checked for a replan (``_guide``)
         self._u_prev: np.ndarray | None = None
         self._last: tuple[TickFrame, np.ndarray] | None = None
         self._sample: tuple[tuple[TickFrame, np.ndarray], TickFrame] | None = None   # for ``settle``
@@ -481,7 +482,10 @@ class VFLPC(ControllerBase):
         self.settle()                   # a sample that nobody settled after the last step
         state, obstacles, pos, vel = self._inputs(state, obstacles)
         self._t_last = float(t)
-        self._guidance(pos, vel, state, t, obstacles)
+        if self._plan is None:          # no reference yet: planned at once
+            self._guidance(pos, vel, state, t, obstacles)
+        else:                           # whether a replan is due: after the command (``_guide``)
+            self._unguided = (pos, vel, state, t, obstacles)
         ref = self._reference(t)
         frame = self.errors.frame(state, ref)
         observe_now = self._ticks % self._observe_every == 0
@@ -507,7 +511,8 @@ class VFLPC(ControllerBase):
 
     def settle(self) -> None:
         """Shift the last step's solver's weights one step along the horizon (its warm start for the
-        next tick), find the path's arc length of its position (``_arc_length``), and offer the transition the last step saw (the previous sampled lifted state, the command
+        next tick), check whether a replan is due (``_guide``), find the path's arc length of its
+        position (``_arc_length``), and offer the transition the last step saw (the previous sampled lifted state, the command
         applied there, the current state in that window frame) to the GP: work the command does not
         wait for, done after it is sent (``ControllerBase.settle``), else at the next step's start.
         The GP of a step is the one before its own transition's sample (the sample is folded in
@@ -516,6 +521,7 @@ class VFLPC(ControllerBase):
         solver, self._unshifted = self._unshifted, None
         if solver is not None:
             solver.shift()
+        self._guide()
         self._arc_length()
         sample, self._sample = self._sample, None
         if sample is not None:
@@ -540,6 +546,7 @@ class VFLPC(ControllerBase):
     def take_replan(self, force_at: float | None = None) -> ReplanJob | None:
         """The due replan, handed out once (None when none is due). ``force_at``: a time t at which
         a replan is wanted even if none is due (a periodic refresh): it is made from the last state."""
+        self._guide()
         job, self._pending = self._pending, None
         if job is None and force_at is not None:
             job = self._fresh_job(float(force_at))
@@ -558,6 +565,7 @@ class VFLPC(ControllerBase):
         once from the present state; no planning failure: the old plan stays, and where it ends the
         robot stops, from where the next plan is not stale); a replan that ``plan_gate`` refuses is a
         failed one (the previous plan stays)."""
+        self._guide()                   # the last step's check first, as it ran before this install
         plan = self._joined(job, result.plan)
         if plan is None:
             self.stale_replans += 1
@@ -603,6 +611,7 @@ class VFLPC(ControllerBase):
 
     def replan_failed(self, job: ReplanJob, reason: str) -> None:
         """A replan found no plan: the previous reference stays; counted and logged."""
+        self._guide()                   # the last step's check first, as it ran before this news
         self.replan_failures += 1
         log.warning("event=replan_failed t=%.2f reason=%s", job.t, reason)
 
@@ -641,6 +650,14 @@ class VFLPC(ControllerBase):
         heading = values[self.errors.layout.heading] if self.dim == 2 else None
         self._last_inputs = (pos, vel, heading, obstacles)
         return state, obstacles, pos, vel
+
+    def _guide(self) -> None:
+        """The last step's guidance check (``_guidance``), which the command does not wait for: run
+        in ``settle``, or before a replan is taken, installed or reported failed, whichever comes
+        first (in the order it ran in when it was part of the step)."""
+        args, self._unguided = self._unguided, None
+        if args is not None:
+            self._guidance(*args)
 
     def _arc_length(self) -> float | None:
         """The path's arc length s of the last step's position (None before the first step),

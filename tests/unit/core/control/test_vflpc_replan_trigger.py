@@ -107,3 +107,18 @@ def test_a_plan_with_a_stretch_beyond_the_limits_is_planned_again_until_one_keep
     for k in range(steps + 1, 3 * steps):
         ctrl.step(ctrl.state0, k * DT)
         assert ctrl.take_replan() is None, k
+
+
+def test_the_replan_check_comes_after_the_command(ctrl):
+    """The step that sees the walker appear commands without checking for a replan; its settle
+    (or a replan taken before it) asks for the one replan."""
+    ctrl.step(ctrl.state0, DT, [walker(1.0)])
+    assert ctrl._pending is None and ctrl._unguided is not None       # not checked before the command
+    ctrl.settle()
+    job = ctrl.take_replan()
+    assert job is not None and job.t == pytest.approx(DT) and ctrl.take_replan() is None
+    ctrl.step(ctrl.state0, 2 * DT, [walker(3.0)])                     # the walker speeds up
+    newer = ctrl.take_replan()                                         # taken before the settle
+    assert newer is not None and newer.t == pytest.approx(2 * DT)
+    ctrl.settle()
+    assert ctrl.take_replan() is None                                  # checked once
