@@ -2,13 +2,16 @@
 
 1. Breakdown. VF-LPC runs the closed loop of ``carsim_avoidance`` (the vehicle) and ``uav_3d``
    (the quadrotor); each phase of every ``step`` is timed by wrapping the controller method that
-   does it: inputs (checks, path projection), guidance check (is a replan due; the replan itself
-   is background work, timed apart), reference (sampling the plan over the horizon), lift (window
-   frame and Koopman lift of the robot and the reference), error model (the horizon problem, and
-   its increment form), barrier (game region and the threats' safety points), solve (Eb-RHRL),
-   and the rest of the step (clip into the actuator limits, the solver shift, a GP sample nobody
-   settled after the last step),
-   which is the total less the phases. Median and p99 per phase, in microseconds.
+   does it: inputs (checks), guidance check (the first plan; whether a replan is due is checked
+   after the command, in ``settle``, with the path projection, the solver shift and the GP sample,
+   none of them in the step's time; the replan itself is background work, timed apart), reference
+   (sampling the plan over the horizon), lift (window frame and Koopman lift of the robot and the
+   reference), error model (the horizon problem, and its increment form), barrier (game region
+   and the threats' safety points), solve (Eb-RHRL), and the rest of the step (the weights' mode,
+   the divergence test, the clip into the actuator limits), which is the total less the phases.
+   Where the horizon is one compiled call (``tick_horizon.CompiledHorizon``; the table says so)
+   the solve's time holds the problem, its increment form and the clip, and the error model's
+   only the GP's arrays gathered. Median and p99 per phase, in microseconds.
 2. Scaling. A 200 m straight road at 25 km/h with N static posts beside the lane and M
    pedestrians crossing it ahead of the car (N in 0 .. 40, M in 0 .. 8): the tick's median and
    p99 and the background jobs' (replans) median, p99 and max per (N, M).
@@ -49,7 +52,7 @@ PHASES = (("inputs", "_inputs"), ("guidance check", "_guidance"), ("reference", 
           ("lift", "errors.frame"), ("error model", "_tick_horizon.begin"), ("barrier", "_barrier"),
           ("solve", "_tick_horizon.solve"))
 RATE_PHASE = "error model"      # the increment form of the problem (each mode's RateForm.increments)
-REST = "clip, shift, GP sample"
+REST = "mode, checks, clip"
 SCALING = ((0, 0), (10, 0), (20, 0), (40, 0), (10, 2), (10, 4), (10, 8), (40, 8))
 PACED = ("racing_track", "vflpc_ml", 0.01)      # scene, controller, period s: the bench loop's
 ROAD_M, SPEED = 200.0, 25.0 / 3.6
