@@ -426,7 +426,8 @@ class VFLPC(ControllerBase):
                                          for v in params.slow_speeds if v < params.light_speeds[0])
         self.solver, self.compensator = solver, compensator
         self._cruise_mode = (self.rate, solver)
-        self._tick_horizon = CompiledHorizon(em) if CompiledHorizon.applies(em) else ProblemHorizon(em, self._command_loop)
+        self._tick_horizon = (CompiledHorizon(em) if CompiledHorizon.applies(em)
+                              else ProblemHorizon(em, self._command_loop))
         self.plan_gate = None          # set by the safety guard (vflpcd.core.safety): refuses undrivable replans
         self.planning, self.jobs = self, self
         self.body_radius, self.safety_margin = float(body_radius), float(safety_margin)
@@ -512,9 +513,10 @@ class VFLPC(ControllerBase):
     def settle(self) -> None:
         """Shift the last step's solver's weights one step along the horizon (its warm start for the
         next tick), check whether a replan is due (``_guide``), find the path's arc length of its
-        position (``_arc_length``), and offer the transition the last step saw (the previous sampled lifted state, the command
-        applied there, the current state in that window frame) to the GP: work the command does not
-        wait for, done after it is sent (``ControllerBase.settle``), else at the next step's start.
+        position (``_arc_length``), and offer the transition the last step saw (the previous sampled
+        lifted state, the command applied there, the current state in that window frame) to the GP:
+        work the command does not wait for, done after it is sent (``ControllerBase.settle``), else at
+        the next step's start.
         The GP of a step is the one before its own transition's sample (the sample is folded in
         before the next step), and the command goes out without waiting for the sample's lift,
         residual, dictionary test and rank-one update (a quarter of a learning tick)."""
@@ -810,20 +812,20 @@ class VFLPC(ControllerBase):
 
     def _solve_increments(self, horizon, barrier: HorizonBarrier, t: float, speed: float,
                           frame: TickFrame) -> np.ndarray:
-        """The command u of the increment form of the tick's ``horizon`` (rate.py; ``tick_horizon``) in the tick's mode. Cruising with
-        ``R_rate_light`` given, at a ``speed`` (the body's, m/s) within ``light_speeds`` (where the
-        model's steering response is close to the vehicle's) and on the reference (``_offset`` of
-        ``frame``, within the first of ``light_offsets`` to take the light weights up, within the second to
-        keep them: they track tightly, and a car brought back from a swerve by them, 0.16 m off
-        the road behind a crossing pedestrian, swung across it for 5 s at +-0.15 rad before it
-        settled), the light weights are tried first,
-        their increments bounded by the actuator's rate limit (``RateForm.increments``: the solver clips
-        its rollout and projects its targets onto them); their plan is kept unless it rides that
-        limit at more than ``LIGHT_SATURATION`` of the horizon's steps (a manoeuvre the light
-        weights ask too much of: following a slow car they weaved round it), else the tick is solved
-        again with ``R_rate`` and the light weights are left for ``light_hold`` s. The light weights
-        track tightly where the reference asks for gentle steering, and with the bounds a transient
-        (a start off the route's heading) no longer sends them away; the heavy ones keep a solver
+        """The command u of the increment form (rate.py) of the tick's ``horizon`` (``tick_horizon``)
+        in the tick's mode. Cruising with ``R_rate_light`` given, at a ``speed`` (the body's, m/s)
+        within ``light_speeds`` (where the model's steering response is close to the vehicle's) and on
+        the reference (``_offset`` of ``frame``, within the first of ``light_offsets`` to take the
+        light weights up, within the second to keep them: they track tightly, and a car brought back
+        from a swerve by them, 0.16 m off the road behind a crossing pedestrian, swung across it for
+        5 s at +-0.15 rad before it settled), the light weights are tried first, their increments
+        bounded by the actuator's rate limit (``RateForm.increments``: the solver clips its rollout
+        and projects its targets onto them); their plan is kept unless it rides that limit at more
+        than ``LIGHT_SATURATION`` of the horizon's steps (a manoeuvre the light weights ask too much
+        of: following a slow car they weaved round it), else the tick is solved again with
+        ``R_rate`` and the light weights are left for ``light_hold`` s. The light weights track
+        tightly where the reference asks for gentle steering, and with the bounds a transient (a
+        start off the route's heading) no longer sends them away; the heavy ones keep a solver
         without bounds from asking for steps the actuator cannot make (rate.py: the loop then
         oscillates behind the rate clip)."""
         lo, hi = self.params.light_speeds
@@ -878,13 +880,14 @@ class VFLPC(ControllerBase):
 
     def _solve(self, horizon, rate: RateForm | None, barrier: HorizonBarrier) -> np.ndarray:
         """The solver's first input of the tick's ``horizon`` (in ``rate``'s increment form, or the
-        problem itself when None). On a failure the plan of the last solve that
-        succeeded goes on, a step a tick since it was solved (its inputs are deviations from the
-        time-indexed reference, which moves on with it), for as many ticks as it has steps; then the terminal LQR
-        law -K_terminal x0 (the rate form's, or the error model's). The LQR law of the lifted error alone knows nothing of the obstacles and
-        of the rate limits: the Koopman-MPC, whose OSQP met its iteration cap on three ticks while
-        it passed the slow car of carsim_avoidance, turned into the slow car's lane on it at
-        0.33 rad of steering and +3 m/s^2, where its last plan drove on past it."""
+        problem itself when None). On a failure the plan of the last solve that succeeded goes on, a
+        step a tick since it was solved (its inputs are deviations from the time-indexed reference,
+        which moves on with it), for as many ticks as it has steps; then the terminal LQR law
+        -K_terminal x0 (the rate form's, or the error model's). The LQR law of the lifted error alone
+        knows nothing of the obstacles and of the rate limits: the Koopman-MPC, whose OSQP met its
+        iteration cap on three ticks while it passed the slow car of carsim_avoidance, turned into
+        the slow car's lane on it at 0.33 rad of steering and +3 m/s^2, where its last plan drove on
+        past it."""
         u_tilde = self._solve_with(self.solver, horizon, rate, barrier)
         if u_tilde is not None:
             self._held, self._held_tick = u_tilde, self._ticks

@@ -94,7 +94,9 @@ class ErrorModel:
     s = ``schedule_at`` and its horizon linearised at the reference every tick (``_scheduled_linearisation``;
     ``problem_loop``: ``scheduled_kernel.problem_loop`` compiled, or None for the numpy path).
     ``tick_loops``: the tick's loops compiled (``TickLoops``: the window, the nominal linearisation
-    and the GP's correction), or None for the numpy path."""
+    and the GP's correction), or None for the numpy path. ``B_x_pinv`` (n_u, n_x) is the
+    pseudo-inverse of B's physical rows (u_r's fit), ``A_N``, ``B_N`` the nominal pair along the
+    horizon (read-only views, the same arrays at every tick)."""
 
     def __init__(self, model: LiftedLinearModel, Q_x: np.ndarray, q_lift: float, R: np.ndarray, gamma: float,
                  N: int, limits: Limits, comp: KoopmanCompensation | None = None, gp_jacobians: bool = False,
@@ -118,9 +120,9 @@ class ErrorModel:
         self.P = sl.solve_discrete_are(g * self.A, g * self.B, self.Q, self.R)
         self.K_terminal = np.linalg.solve(self.R + self.gamma * self.B.T @ self.P @ self.B,
                                           self.gamma * self.B.T @ self.P @ self.A)
-        self._B_x_pinv = np.linalg.pinv(B[: model.n_x])
-        self._A_N = np.broadcast_to(self.A, (self.N, self.n, self.n))
-        self._B_N = np.broadcast_to(self.B, (self.N, self.n, model.n_u))
+        self.B_x_pinv = np.linalg.pinv(B[: model.n_x])
+        self.A_N = np.broadcast_to(self.A, (self.N, self.n, self.n))
+        self.B_N = np.broadcast_to(self.B, (self.N, self.n, model.n_u))
         self.layout = PoseLayout.of(model.state_names)
         self.tick_loops = tick_loops
         self._lifts: dict[int, tuple] = {}            # window length -> (its lifter, its float32 buffer)
@@ -177,12 +179,12 @@ class ErrorModel:
         may keep what they derive from them)."""
         m, lim = self.model, self.limits
         if self.tick_loops is not None:         # the same numbers, compiled
-            u_r, nxt = self.tick_loops.linearisation(U_r, m.A, m.B, self._B_x_pinv, m.n_x, lim.u_min, lim.u_max)
-            return u_r, nxt, self._A_N, self._B_N
+            u_r, nxt = self.tick_loops.linearisation(U_r, m.A, m.B, self.B_x_pinv, m.n_x, lim.u_min, lim.u_max)
+            return u_r, nxt, self.A_N, self.B_N
         pred = U_r[:-1] @ m.A.T                                           # (N, n_K)
-        u_r = (U_r[1:, : m.n_x] - pred[:, : m.n_x]) @ self._B_x_pinv.T
+        u_r = (U_r[1:, : m.n_x] - pred[:, : m.n_x]) @ self.B_x_pinv.T
         u_r = np.minimum(np.maximum(u_r, lim.u_min), lim.u_max)
-        return u_r, pred + u_r @ m.B.T, self._A_N, self._B_N
+        return u_r, pred + u_r @ m.B.T, self.A_N, self.B_N
 
     def _scheduled_linearisation(self, U_r: np.ndarray):
         """``_linearisation`` for a model whose input matrix depends on a state s (``lifted``: B + s B_s):

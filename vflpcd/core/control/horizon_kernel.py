@@ -1,5 +1,5 @@
 """The tick's work after the lift as one loop to compile: ``VFLPC``'s horizon problem, its solve and
-the command, in one call (``vflpcd.core.vflpc.CompiledHorizon``).
+the command, in one call (``tick_horizon.CompiledHorizon``).
 
 ``horizon_command_loop`` runs, in order and with the numpy path's operations:
 
@@ -17,7 +17,7 @@ the command, in one call (``vflpcd.core.vflpc.CompiledHorizon``).
 It returns (u, targets, iterations, max epsilon_a, max epsilon_c, saturated steps); whether the
 solve is kept (its divergence test, the light weights' saturation) is the controller's, which then
 uses u or throws it away. Each step is the function the calls one by one run, so the numbers are
-theirs (tests/unit/core/control/test_horizon_kernel.py).
+theirs (tests/unit/core/control/test_tick_horizon.py, in closed loop).
 
 Why one call: after the daemon's 10 ms sleep every distinct call of a tick pays for what the
 machine let go cold meanwhile, about 12 us per compiled call on this machine against some 2 us

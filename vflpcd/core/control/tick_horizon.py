@@ -93,12 +93,12 @@ class CompiledHorizon:
         m, lim, loops = errors.model, errors.limits, errors.tick_loops
         self.errors, self.loop, command_loop = errors, loops.horizon, loops.command
         self._calls = ProblemHorizon(errors, command_loop)
-        self._model = (m.A, m.B, errors._B_x_pinv, m.n_x, lim.u_min, lim.u_max)
+        self._model = (m.A, m.B, errors.B_x_pinv, m.n_x, lim.u_min, lim.u_max)
         n, n_u, N = errors.n, m.n_u, errors.N
         self._no_gp = no_gp_arguments(errors.comp.n_z if errors.comp is not None else 1, m.n_K)
-        self._B_plain = np.ascontiguousarray(errors._B_N)       # the solver's B without an increment form
-        self._plain = (False, errors._B_N, np.zeros(0, np.int64), np.zeros((N, n + n_u)), np.zeros(n),
-                       np.zeros((N, n_u)), np.zeros((N, n_u)))
+        self._B_plain = np.ascontiguousarray(errors.B_N)       # the solver's B without an increment form
+        self._plain = (False, errors.B_N, np.zeros(0, np.int64), np.zeros((N, n + n_u)), np.zeros(n),
+                       np.zeros((N, n_u)), np.zeros((N, n_u)))     # no increment form: its arrays unused
         self._frame: TickFrame | None = None
         self._u_prev = self._gp = self._gp_model = self._u = self._target = None
         self._begun = False
@@ -126,10 +126,10 @@ class CompiledHorizon:
         e = self.errors
         if rate is not None:
             w = rate.work(e.N)
-            A, B = rate.augmented(e._A_N, e._B_N)
-            form, A_cl = (True, e._B_N, w.commanded, w.c, w.x0, w.lo, w.hi), solver.closed_loop_of(A, B)
+            A, B = rate.augmented(e.A_N, e.B_N)
+            form, A_cl = (True, e.B_N, w.commanded, w.c, w.x0, w.lo, w.hi), solver.closed_loop_of(A, B)
         else:               # A - B K of the arrays ProblemHorizon's problem has (the same numbers)
-            B, form, A_cl = self._B_plain, self._plain, solver.closed_loop_of(e._A_N, e._B_N)
+            B, form, A_cl = self._B_plain, self._plain, solver.closed_loop_of(e.A_N, e.B_N)
         frame = self._frame
         u, target, iterations, eps_a, eps_c, saturated = self.loop(
             frame.U, frame.U_r, *self._model, self._u_prev, e.limits.du_max, *self._gp, *form, A_cl, B,
