@@ -51,17 +51,15 @@ def horizon_command_loop(U, U_r, A, B, B_x_pinv, n_x, u_min, u_max, u_prev, du_m
             c[k, i] = nxt[k, i] - U_r[k + 1, i]
     for i in range(n):
         x0[i] = U[i] - U_r[0, i]
+    c_s, x0_s = c, x0                   # the problem the solver sees: the increment form's, or its own
     if increments:
         increment_loop(c, B_N, u_r, x0, u_prev, du_max, commanded, c_z, x0_z, lo, hi)
-        target, iterations, eps_a, eps_c, saturated = solve_loop(
-            A_cl, B_s, c_z, x0_z, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh, pos_index, p_ref, x_p, normal,
-            mu, length, eta_a, i_max, tol, phi_floor, bounded, lo, hi)
-    else:
-        target, iterations, eps_a, eps_c, saturated = solve_loop(
-            A_cl, B_s, c, x0, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh, pos_index, p_ref, x_p, normal,
-            mu, length, eta_a, i_max, tol, phi_floor, bounded, lo, hi)
+        c_s, x0_s = c_z, x0_z
+    target, iterations, eps_a, eps_c, saturated = solve_loop(
+        A_cl, B_s, c_s, x0_s, K, Q, R2, P, M_inv, gamma, W_a, W_c, fa, fb, fh, pos_index, p_ref, x_p, normal,
+        mu, length, eta_a, i_max, tol, phi_floor, bounded, lo, hi)
     u_tilde0 = np.empty(n_u)
     for j in range(n_u):
-        u_tilde0[j] = x0_z[n + j] + target[0, j] if increments else target[0, j]
+        u_tilde0[j] = x0_s[n + j] + target[0, j] if increments else target[0, j]
     u = command_loop(u_r[0], u_tilde0, u_min, u_max, u_prev, du_max)
     return u, target, iterations, eps_a, eps_c, saturated
