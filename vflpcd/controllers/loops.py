@@ -50,7 +50,7 @@ def tick_loops():
     from vflpcd.core.control.error_model import TickLoops
     from vflpcd.core.control.horizon_reference import strided_rows
     from vflpcd.core.control.rate_kernel import increment_loop
-    from vflpcd.core.control.tick_kernel import command_loop, linearisation_loop, window_loop
+    from vflpcd.core.control.tick_kernel import command_loop, linearisation_loop, window_lift_loop, window_loop
     from vflpcd.core.control.horizon_kernel import horizon_command_loop
     from vflpcd.core.dynamics.gp_kernel import corrected_next_loop
 
@@ -59,7 +59,9 @@ def tick_loops():
     if window is None:
         return None
     _horizon_steps()
+    _lift_steps()
     return TickLoops(window=window,
+                     lift=_compiled("tick_lift", window_lift_loop, _warm_tick_lift, numpy_errors=True),
                      linearisation=_compiled("tick_linearisation", linearisation_loop, _warm_tick_linearisation),
                      correction=_compiled("tick_gp_correction", corrected_next_loop, _warm_tick_correction),
                      increment=_compiled("tick_increment", increment_loop, _warm_tick_increment),
@@ -228,6 +230,16 @@ def _horizon_steps() -> bool:
 
 
 @lru_cache(maxsize=1)
+def _lift_steps() -> bool:
+    """Register what ``tick_kernel.window_lift_loop`` calls (``window_loop``, ``encoder_kernel``'s
+    ``encoder_loop`` and its ``tanh_ratio``) with numba; False without numba."""
+    from vflpcd.core.control.tick_kernel import window_loop
+    from vflpcd.core.dynamics.encoder_kernel import encoder_loop, tanh_ratio
+
+    return _jitable(window_loop, encoder_loop, tanh_ratio)
+
+
+@lru_cache(maxsize=1)
 def _path_window() -> bool:
     """Register ``path_kernel.window_runs``, which the path projection's loop calls, with numba;
     False without numba."""
@@ -263,20 +275,23 @@ def _jitable(*fns) -> bool:
     return True
 
 
-def _compiled(name: str, fn, warm):
+def _compiled(name: str, fn, warm, numpy_errors: bool = False):
     """fn compiled with numba's cache (in memory where none can be written) and warmed, or None
-    without numba (the caller's numpy path)."""
+    without numba (the caller's numpy path). ``numpy_errors``: a division by zero gives inf or NaN as
+    in numpy instead of raising (numba's ``error_model="numpy"``), for a loop whose divisors are never
+    zero, where the check would keep its loops from being vectorised."""
     try:
         from numba import njit
     except ImportError:
         log.info("event=loop_interpreted loop=%s reason=numba is not installed (numpy path)", name)
         return None
+    errors = "numpy" if numpy_errors else "python"
     try:
-        loop = njit(cache=True)(fn)
+        loop = njit(cache=True, error_model=errors)(fn)
     except RuntimeError as exc:          # no writable cache location (numba's "no locator available")
         log.warning("event=loop_cache_unavailable loop=%s reason=%s (compiling in memory; set NUMBA_CACHE_DIR)",
                     name, exc)
-        loop = njit(cache=False)(fn)
+        loop = njit(cache=False, error_model=errors)(fn)
     warm(loop)
     return loop
 
@@ -305,6 +320,16 @@ def _warm_tick_window(loop) -> None:
 
     loop(np.zeros(3), np.zeros((1, 3)), 2, np.array([0, 1]), 2, np.zeros(3), np.ones(3), np.zeros((2, 3)),
          np.zeros((2, 3), np.float32))
+
+
+def _warm_tick_lift(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``ErrorModel.frame`` passes with a deep
+    Koopman lift (``BufferedLift.encoder``)."""
+    import numpy as np
+
+    loop(np.zeros(3), np.zeros((1, 3)), 2, np.array([0, 1]), 2, np.zeros(3), np.ones(3), np.zeros((2, 3)),
+         np.zeros((2, 3), np.float32), np.zeros(6, np.float32), np.zeros(2, np.float32), np.array([3, 2]),
+         np.zeros((2, 2, 3), np.float32), np.zeros((2, 6)))
 
 
 def _warm_tick_linearisation(loop) -> None:

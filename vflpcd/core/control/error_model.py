@@ -45,7 +45,8 @@ _KINDS = {"none": KIND_NONE, "position": KIND_POSITION, "planar": KIND_PLANAR}  
 
 @dataclass(frozen=True)
 class TickLoops:
-    """The tick's loops, compiled: ``tick_kernel``'s ``window_loop`` and ``linearisation_loop``,
+    """The tick's loops, compiled: ``tick_kernel``'s ``window_loop``, ``window_lift_loop`` (the window and
+    a deep Koopman lift of it in one call) and ``linearisation_loop``,
     ``gp_kernel.corrected_next_loop`` (the GP's mean in c_tau), ``rate_kernel.increment_loop`` (the
     increment form's fill, ``RateForm.increments``), ``tick_kernel.command_loop`` (the command
     clipped into the limits, ``tick_horizon.clipped_command``), ``horizon_reference.strided_rows`` (the
@@ -59,6 +60,7 @@ class TickLoops:
     command: Callable | None = None
     reference: Callable | None = None
     horizon: Callable | None = None
+    lift: Callable | None = None
 
 
 @dataclass(frozen=True)
@@ -140,17 +142,25 @@ class ErrorModel:
         return self._lifted_window(origin, state[None, :])[1][1]
 
     def _lifted_window(self, state: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The window [state; reference] (T, n_x) in the state's frame and its lift (T, n_K), by
-        ``tick_loops.window`` and a buffered lift per window length when compiled, else numpy."""
+        """The window [state; reference] (T, n_x) in the state's frame and its lift (T, n_K): compiled, by
+        ``tick_loops.lift`` in one call where the lift is a deep Koopman encoder (``Lifter.encoder``),
+        else ``tick_loops.window`` and the lift; or numpy. One lifter and its float32 buffer per window
+        length."""
         T = len(reference) + 1
         window = np.empty((T, self.model.n_x))
         lift = self._lifts.get(T)
         if lift is None:
-            lift = self._lifts[T] = (self.model.lifter(T), np.empty((T, self.model.n_x), np.float32))
+            lifter = self.model.lifter(T)
+            lift = self._lifts[T] = (lifter, np.empty((T, self.model.n_x), np.float32), lifter.encoder())
         if self.tick_loops is not None:                  # the same numbers, compiled
-            lay = self.layout
-            self.tick_loops.window(state, reference, _KINDS[lay.kind], self._position, lay.heading or 0,
-                                   self.model.x_mean, self.model.x_std, window, lift[1])
+            lay, loops = self.layout, self.tick_loops
+            pose = (state, reference, _KINDS[lay.kind], self._position, lay.heading or 0, self.model.x_mean,
+                    self.model.x_std, window, lift[1])
+            if loops.lift is not None and lift[2] is not None:
+                U = np.empty((T, self.model.n_K))
+                loops.lift(*pose, *lift[2], U)
+                return window, U
+            loops.window(*pose)
             return window, lift[0].from_normalised(window, lift[1])
         window[0], window[1:] = state, reference
         return window, lift[0](window_in_place(window, self.layout))

@@ -5,6 +5,8 @@ numbers to 1e-12, tests/unit/core/control/test_tick_kernel.py):
   the robot's frame (``lifted.window_in_place``: planar, with the heading unwrapped along the
   window as ``np.unwrap`` does, or position-only) and normalised for the encoder in float32
   ((x - x_mean) / x_std, ``KoopmanModel.normalise_state``);
+* ``window_lift_loop``: ``window_loop`` and the deep Koopman lift of the window, Upsilon = [x, rho_e(x_n), 1]
+  (rows, n_K), by ``encoder_kernel.encoder_loop`` (``KoopmanModel.lift``, the same bits);
 * ``linearisation_loop``: the nominal linearisation (``ErrorModel._linearisation``):
   u_r,tau = pinv(B_x) (x_r,tau+1 - [A Upsilon_r,tau]_{1..n_x}) clipped into [u_min, u_max], and
   next_tau = A Upsilon_r,tau + B u_r,tau;
@@ -23,6 +25,7 @@ import math
 
 import numpy as np
 
+from vflpcd.core.dynamics.encoder_kernel import encoder_loop
 from vflpcd.core.loop_algebra import matvec
 
 KIND_NONE, KIND_POSITION, KIND_PLANAR = 0, 1, 2
@@ -69,6 +72,17 @@ def window_loop(state, reference, kind, position, heading, x_mean, x_std, window
     for r in range(T):
         for c in range(n_x):
             normalised[r, c] = (window[r, c] - x_mean[c]) / x_std[c]
+
+
+def window_lift_loop(state, reference, kind, position, heading, x_mean, x_std, window, normalised,
+                     weights, biases, dims, work, U):
+    window_loop(state, reference, kind, position, heading, x_mean, x_std, window, normalised)
+    n_x, n_K = window.shape[1], U.shape[1]
+    for r in range(window.shape[0]):
+        for c in range(n_x):
+            U[r, c] = window[r, c]
+        U[r, n_K - 1] = 1.0
+    encoder_loop(normalised, weights, biases, dims, work, U, n_x)
 
 
 def linearisation_loop(U_r, A, B, B_x_pinv, n_x, u_min, u_max):

@@ -15,7 +15,9 @@ where the encoder rho_e: R^{n_x} -> R^{n_e}, n_e = n_K - n_x - 1, is a multilaye
     h_0 = x_n,  h_i = tanh(h_{i-1} W_i + b_i) (i < L),  rho_e = h_{L-1} W_L + b_L
 
 (activation ``tanh`` on the hidden layers, the output layer linear; W_i (d_{i-1}, d_i),
-b_i (d_i,), d_0 = n_x, d_L = n_e), evaluated in float32, the precision of its training. The last lifted entry is the constant 1, the convention
+b_i (d_i,), d_0 = n_x, d_L = n_e), evaluated in float32, the precision of its training, in the order
+that ``encoder_kernel`` defines (its sums in a fixed order, its tanh a rational function within an ulp
+of float32 tanh): the compiled tick's lift and numpy's give the same bits. The last lifted entry is the constant 1, the convention
 of :func:`vflpcd.core.dynamics.lifted.to_physical`: it carries the affine offsets of the
 normalisation, so A (n_K, n_K) and B (n_K, n_u) act on the physical [x, rho_e, 1] and the
 predicted state is the first n_x entries of Upsilon_{k+1} = A Upsilon_k + B u_k (plus s_k B_s u_k for
@@ -30,32 +32,16 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from vflpcd.core.dynamics.encoder_kernel import encoder_layers
 from vflpcd.core.dynamics.lifted import LiftedLinearModel, Lifter
 
 ACTIVATION = "tanh"
 
 
 def encoder_forward(x_n: np.ndarray, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray]) -> np.ndarray:
-    """The MLP encoder rho_e: x_n (..., n_x) -> (..., n_e) float64; tanh on every layer but the last,
-    evaluated in the precision of the weights (``KoopmanModel`` passes float32 copies)."""
-    return encoder_layers(np.asarray(x_n, dtype=weights[0].dtype), weights, biases).astype(np.float64)
-
-
-def encoder_layers(h: np.ndarray, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray],
-                   buffers: Sequence[np.ndarray] | None = None) -> np.ndarray:
-    """``encoder_forward``'s layers on h (..., n_x) in the weights' precision, the last layer's
-    output returned in it; with ``buffers`` (one array per layer, of its output's shape) each layer
-    is written into its buffer (the same numbers, nothing allocated)."""
-    last = len(weights) - 1
-    for i, (W, b) in enumerate(zip(weights, biases)):
-        if buffers is None:
-            h = h @ W + b
-        else:
-            h = np.matmul(h, W, out=buffers[i])
-            h += b
-        if i < last:
-            np.tanh(h, out=h)
-    return h
+    """The MLP encoder rho_e: x_n (..., n_x) -> (..., n_e) float64, by ``encoder_kernel.encoder_layers``
+    (float32 weights: ``KoopmanModel`` passes float32 copies)."""
+    return encoder_layers(np.asarray(x_n, dtype=np.float32), weights, biases).astype(np.float64)
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:
@@ -115,29 +101,25 @@ class KoopmanModel(LiftedLinearModel):
 
 
 class BufferedLift(Lifter):
-    """``KoopmanModel.lift`` of ``rows`` states (rows, n_x) at a time, the same operations written
-    into arrays allocated once (the same numbers); each call returns a new (rows, n_K) array."""
+    """``KoopmanModel.lift`` of ``rows`` states (rows, n_x) at a time; ``encoder`` hands a compiled lift
+    (``tick_kernel.window_lift_loop``) the encoder packed for ``encoder_kernel.encoder_loop``, with its
+    work arrays for ``rows`` states, allocated once."""
 
     def __init__(self, model: KoopmanModel, rows: int) -> None:
         super().__init__(model)
         self.n_x, self.n_K = model.n_x, model.n_K
-        self._mean, self._std = model.x_mean, model.x_std
         self._w, self._b = model._w32, model._b32
-        self._x = np.empty((rows, model.n_x))
-        self._h = [np.empty((rows, model.n_x), np.float32)] + [np.empty((rows, W.shape[1]), np.float32)
-                                                               for W in self._w]
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        np.subtract(x, self._mean, out=self._x)             # normalise_state
-        np.divide(self._x, self._std, out=self._x)
-        self._h[0][:] = self._x                              # encoder_forward, in float32
-        return self.from_normalised(x, self._h[0])
+        widths = [model.n_x] + [W.shape[1] for W in self._w]
+        self._packed = (np.concatenate([W.ravel() for W in self._w]), np.concatenate(self._b),
+                        np.array(widths, dtype=np.int64), np.empty((2, rows, max(widths)), np.float32))
 
     def from_normalised(self, x: np.ndarray, normalised: np.ndarray) -> np.ndarray:
         """The lift of states x (rows, n_x) whose normalised states (float32) are at hand."""
-        h = encoder_layers(normalised, self._w, self._b, self._h[1:])
         U = np.empty((len(x), self.n_K))
         U[:, : self.n_x] = x
-        U[:, self.n_x:-1] = h
+        U[:, self.n_x:-1] = encoder_layers(normalised, self._w, self._b)
         U[:, -1] = 1.0
         return U
+
+    def encoder(self) -> tuple:
+        return self._packed

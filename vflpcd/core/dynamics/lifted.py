@@ -322,7 +322,7 @@ class Lifter:
     """``LiftedLinearModel.lift`` of a fixed number of states at a time (``LiftedLinearModel.lifter``):
     called on states x (rows, n_x), or through ``from_normalised`` with their normalised copy
     (x - x_mean) / x_std in float32 at hand (a model whose lift does not start from it ignores it);
-    each returns a new (rows, n_K) array."""
+    each returns a new (rows, n_K) array. ``encoder``: what a compiled lift needs, where there is one."""
 
     def __init__(self, model: "LiftedLinearModel") -> None:
         self._lift = model.lift
@@ -332,6 +332,11 @@ class Lifter:
 
     def from_normalised(self, x: np.ndarray, normalised: np.ndarray) -> np.ndarray:
         return self._lift(x)
+
+    def encoder(self) -> tuple | None:
+        """The arguments of ``encoder_kernel.encoder_loop`` after h (weights, biases, dims, work) for a
+        compiled lift of these rows, or None: a lift that is not a deep Koopman encoder."""
+        return None
 
 
 def scheduled_step(A: np.ndarray, B: np.ndarray, B_s: np.ndarray, schedule: int | None, U: np.ndarray,

@@ -1,13 +1,14 @@
-"""The tick's window and nominal linearisation compiled (``tick_kernel``) against the numpy path of
-``ErrorModel``: the same frame and problem to 1e-12, for the car's and the quadrotor's models, with
-the heading wrapping inside the window, and with the reference controls clipped."""
+"""The tick's window, lift and nominal linearisation compiled (``tick_kernel``) against the numpy path
+of ``ErrorModel``: the same frame and problem to 1e-12, for the car's and the quadrotor's models (a
+deep Koopman lift: ``window_lift_loop``) and a lift of another kind, with the heading wrapping inside
+the window, and with the reference controls clipped."""
 
 import numpy as np
 import pytest
 
 from vflpcd.config.koopman_file import load_koopman
 from vflpcd.core.control.error_model import ErrorModel, Limits, TickLoops
-from vflpcd.core.control.tick_kernel import command_loop, linearisation_loop, window_loop
+from vflpcd.core.control.tick_kernel import command_loop, linearisation_loop, window_lift_loop, window_loop
 from vflpcd.core.dynamics.gp_kernel import corrected_next_loop
 from vflpcd.core.dynamics.lifted import LiftedLinearModel
 from vflpcd.base.paths import config_dir
@@ -73,7 +74,7 @@ def compiled():
 def test_the_loops_give_the_numpy_paths_frame_and_problem(compiled, name, wrap, run):
     model = _models()[name]
     loops = compiled if run == "compiled" else TickLoops(window=window_loop, linearisation=linearisation_loop,
-                                                         correction=corrected_next_loop)
+                                                         correction=corrected_next_loop, lift=window_lift_loop)
     rng = np.random.default_rng(7)
     for _ in range(5):
         x0, ref = _states(model, rng, wrap)
