@@ -210,9 +210,11 @@ def test_vflpcd_compile_compiles_every_loop_and_says_so(capsys):
     assert main(["compile"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines == [f"{name}: compiled" for name in
-                     ("ebrhrl_loop", "scheduled_problem_loop", "tick_loops", "gp_add_loop", "ald_loop", "path_loop",
+                     ("ebrhrl_loop", "scheduled_problem_loop", "tick_loops", "encoder_loop", "gp_add_loop", "ald_loop",
+                      "path_loop",
                       "polyline_loop", "supervisor_loops", "guidance_loops")]
-    assert all(hasattr(fn(), "signatures") for fn in (loops.ebrhrl_loop, loops.scheduled_problem_loop, loops.path_loop))
+    assert all(hasattr(fn(), "signatures") for fn in (loops.ebrhrl_loop, loops.scheduled_problem_loop, loops.path_loop,
+                                                      loops.encoder_loop))
     assert loops.guidance_loops().active_set is loops.active_set_loop()
     assert all(hasattr(fn, "signatures") for fn in dataclasses.astuple(loops.supervisor_loops()))
 

@@ -71,6 +71,16 @@ def tick_loops():
 
 
 @lru_cache(maxsize=1)
+def encoder_loop():
+    """``encoder_kernel.encoder_loop`` (the deep Koopman encoder, ``KoopmanModel.compile_encoder``)
+    compiled and loaded (``_warm_encoder``), or None without numba."""
+    from vflpcd.core.dynamics.encoder_kernel import encoder_loop as loop
+
+    _lift_steps()
+    return _compiled("encoder", loop, _warm_encoder, numpy_errors=True)
+
+
+@lru_cache(maxsize=1)
 def gp_add_loop():
     """``gp_kernel.add_sample_loop`` (the online GP's per-sample update) compiled and loaded
     (``_warm_gp_add``), or None without numba."""
@@ -203,7 +213,7 @@ def compile_all() -> dict[str, bool]:
     that later processes load them from the cache in milliseconds instead of compiling for
     10-15 s of CPU (docs/results.md, "The test suite", for what compiling beside real-time runs did)."""
     return {fn.__name__: fn() is not None
-            for fn in (ebrhrl_loop, scheduled_problem_loop, tick_loops, gp_add_loop, ald_loop, path_loop,
+            for fn in (ebrhrl_loop, scheduled_problem_loop, tick_loops, encoder_loop, gp_add_loop, ald_loop, path_loop,
                        polyline_loop, supervisor_loops, guidance_loops)}
 
 
@@ -320,6 +330,14 @@ def _warm_tick_window(loop) -> None:
 
     loop(np.zeros(3), np.zeros((1, 3)), 2, np.array([0, 1]), 2, np.zeros(3), np.ones(3), np.zeros((2, 3)),
          np.zeros((2, 3), np.float32))
+
+
+def _warm_encoder(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``KoopmanModel.encode`` passes."""
+    import numpy as np
+
+    loop(np.zeros((2, 3), np.float32), np.zeros(6, np.float32), np.zeros(2, np.float32), np.array([3, 2]),
+         np.zeros((2, 2, 3), np.float32), np.zeros((2, 2)), 0)
 
 
 def _warm_tick_lift(loop) -> None:

@@ -15,7 +15,7 @@ from vflpcd.core.guidance.planner3d import GuidancePlanner3D
 from vflpcd.core.guidance.tighten import Body
 from vflpcd.config.params import vflpc_params
 from vflpcd.core.vflpc import VFLPC, VFLPCParams
-from vflpcd.controllers.loops import (ald_loop, ebrhrl_loop, gp_add_loop, guidance_loops, path_loop,
+from vflpcd.controllers.loops import (ald_loop, ebrhrl_loop, encoder_loop, gp_add_loop, guidance_loops, path_loop,
                                      scheduled_problem_loop, tick_loops)
 from vflpcd.base.paths import config_dir
 from vflpcd.base.tomlread import load_table
@@ -106,6 +106,8 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
     replaces Eb-RHRL; ``period``: the control tick period (default the model's dt)."""
     params = load_params(scenario.platform)
     model = load_koopman(model_path or config_dir() / "models" / MODELS[scenario.platform])
+    if encoder_loop() is not None:
+        model.compile_encoder(encoder_loop())
     period = model.dt if period is None else float(period)
     planner_cls = GuidancePlanner if scenario.dim == 2 else GuidancePlanner3D
     planner = planner_cls(scenario.path, scenario.guidance, scenario.v_desired, scenario.a_lat_max,

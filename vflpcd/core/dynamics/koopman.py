@@ -79,6 +79,15 @@ class KoopmanModel(LiftedLinearModel):
         # The weights are read-only, so these copies cannot fall out of step with them.
         self._w32 = [W.astype(np.float32) for W in self.enc_weights]
         self._b32 = [b.astype(np.float32) for b in self.enc_biases]
+        #: the encoder packed for ``encoder_kernel.encoder_loop`` (weights, biases, the widths d_0 .. d_L)
+        self.packed_encoder = (np.concatenate([W.ravel() for W in self._w32]), np.concatenate(self._b32),
+                               np.array([self.n_x] + [W.shape[1] for W in self._w32], dtype=np.int64))
+        self._encoder_loop = None
+
+    def compile_encoder(self, loop) -> None:
+        """Run the encoder by ``loop``, ``encoder_kernel.encoder_loop`` compiled (the same bits as its
+        numpy layers, which run without one)."""
+        self._encoder_loop = loop
 
     @property
     def n_encoder(self) -> int:
@@ -87,7 +96,14 @@ class KoopmanModel(LiftedLinearModel):
 
     def encode(self, x: np.ndarray) -> np.ndarray:
         """rho_e of the normalised state: x (..., n_x) window frame -> (..., n_e)."""
-        return encoder_forward(self.normalise_state(x), self._w32, self._b32)
+        x_n = self.normalise_state(x)
+        if self._encoder_loop is None:
+            return encoder_forward(x_n, self._w32, self._b32)
+        h = np.ascontiguousarray(x_n.reshape(-1, self.n_x), dtype=np.float32)
+        out = np.empty((len(h), self.n_encoder))
+        dims = self.packed_encoder[2]
+        self._encoder_loop(h, *self.packed_encoder, np.empty((2, len(h), int(dims.max())), np.float32), out, 0)
+        return out.reshape(x_n.shape[:-1] + (self.n_encoder,))
 
     def rho(self, x: np.ndarray) -> np.ndarray:
         x = np.asarray(x, dtype=np.float64)
@@ -109,9 +125,8 @@ class BufferedLift(Lifter):
         super().__init__(model)
         self.n_x, self.n_K = model.n_x, model.n_K
         self._w, self._b = model._w32, model._b32
-        widths = [model.n_x] + [W.shape[1] for W in self._w]
-        self._packed = (np.concatenate([W.ravel() for W in self._w]), np.concatenate(self._b),
-                        np.array(widths, dtype=np.int64), np.empty((2, rows, max(widths)), np.float32))
+        dims = model.packed_encoder[2]
+        self._packed = (*model.packed_encoder, np.empty((2, rows, int(dims.max())), np.float32))
 
     def from_normalised(self, x: np.ndarray, normalised: np.ndarray) -> np.ndarray:
         """The lift of states x (rows, n_x) whose normalised states (float32) are at hand."""

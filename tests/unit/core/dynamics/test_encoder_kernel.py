@@ -80,3 +80,19 @@ def test_the_numpy_layers_are_the_mlp_and_do_not_depend_on_the_batch():
     np.testing.assert_allclose(got, ref, rtol=0, atol=2e-5)
     np.testing.assert_array_equal(encoder_layers(h[-5:], W, b), got[-5:])
     np.testing.assert_array_equal(encoder_layers(h[:40].reshape(4, 10, 6), W, b), got[:40].reshape(4, 10, 3))
+
+
+@pytest.mark.parametrize("name", ["dynamic_bicycle", "quadrotor"])
+def test_a_model_with_the_compiled_encoder_lifts_the_same_bits(compiled_loop, name):
+    """``KoopmanModel.compile_encoder``: the shipped models' lift of one state and of a batch of any
+    leading shape is numpy's, bit for bit."""
+    from vflpcd.base.paths import config_dir
+    from vflpcd.config.koopman_file import load_koopman
+    from vflpcd.controllers.loops import encoder_loop
+
+    model = load_koopman(config_dir() / "models" / f"{name}.npz")
+    X = np.random.default_rng(5).normal(size=(4, 6, model.n_x)) * 3.0
+    want, want_one = model.lift(X), model.lift(X[1, 2])
+    model.compile_encoder(encoder_loop())
+    np.testing.assert_array_equal(model.lift(X), want)
+    np.testing.assert_array_equal(model.lift(X[1, 2]), want_one)
