@@ -2,7 +2,8 @@
 
 Core stays pure (numpy and scipy only, no files): it writes a loop as plain Python
 (``vflpcd.core.control.ebrhrl_kernel.solve_loop``, ``vflpcd.core.control.scheduled_kernel.problem_loop``,
-``vflpcd.core.control.tick_kernel``'s ``window_loop`` and ``linearisation_loop``,
+``vflpcd.core.control.tick_kernel``'s ``window_loop``, ``window_lift_loop`` and ``linearisation_loop``,
+``vflpcd.core.dynamics.encoder_kernel.encoder_loop``,
 ``vflpcd.core.dynamics.gp_kernel``'s ``add_sample_loop``, ``corrected_next_loop`` and ``ald_delta_loop``,
 ``vflpcd.core.path_kernel``'s ``nearest_arc_length`` and ``polyline_nearest``, the safety supervisor's
 ``vflpcd.core.safety.clearance_kernel``'s ``clearances_loop`` and ``within_reach_loop`` and
@@ -12,7 +13,9 @@ and the guidance's ``active_set_kernel.solve_loop``, ``integrate_kernel.step_loo
 module compiles each once per process, with numba's on-disk cache (beside the source, or numba's
 user-wide cache where that is read-only, or ``$NUMBA_CACHE_DIR``; the systemd unit sets it), so a
 later process loads it in milliseconds; with no writable place it compiles in memory at every
-start. Without numba every ``*_loop()`` and ``guidance_loops()`` return None and their users run
+start. Each cache entry is named after the project files the loop is built from
+(``loop_cache.cache_named``), so that a change to a function it calls, in another file, compiles it
+anew. Without numba every ``*_loop()`` and ``guidance_loops()`` return None and their users run
 their numpy paths (the guidance's steps run their loop interpreted).
 """
 
@@ -20,6 +23,8 @@ from __future__ import annotations
 
 import logging
 from functools import lru_cache
+
+from vflpcd.controllers.loop_cache import cache_named
 
 log = logging.getLogger(__name__)
 
@@ -296,6 +301,7 @@ def _compiled(name: str, fn, warm, numpy_errors: bool = False):
         log.info("event=loop_interpreted loop=%s reason=numba is not installed (numpy path)", name)
         return None
     errors = "numpy" if numpy_errors else "python"
+    fn = cache_named(fn)             # its cache entry named after the project files it is built from
     try:
         loop = njit(cache=True, error_model=errors)(fn)
     except RuntimeError as exc:          # no writable cache location (numba's "no locator available")
