@@ -52,6 +52,7 @@ def tick_loops():
     """The tick's loops (``tick_kernel``'s window and nominal linearisation, ``gp_kernel``'s correction
     by the GP's mean, ``rate_kernel``'s increment fill) compiled and loaded (``_warm_tick_*``), as ``error_model.TickLoops``, or None
     without numba."""
+    from vflpcd.core.control.barrier_kernel import safety_points_loop
     from vflpcd.core.control.error_model import TickLoops
     from vflpcd.core.control.horizon_reference import strided_rows
     from vflpcd.core.control.rate_kernel import increment_loop
@@ -67,6 +68,7 @@ def tick_loops():
     _lift_steps()
     return TickLoops(window=window,
                      lift=_compiled("tick_lift", window_lift_loop, _warm_tick_lift, numpy_errors=True),
+                     barrier=_compiled("tick_barrier", safety_points_loop, _warm_tick_barrier),
                      linearisation=_compiled("tick_linearisation", linearisation_loop, _warm_tick_linearisation),
                      correction=_compiled("tick_gp_correction", corrected_next_loop, _warm_tick_correction),
                      increment=_compiled("tick_increment", increment_loop, _warm_tick_increment),
@@ -354,6 +356,17 @@ def _warm_tick_lift(loop) -> None:
     loop(np.zeros(3), np.zeros((1, 3)), 2, np.array([0, 1]), 2, np.zeros(3), np.ones(3), np.zeros((2, 3)),
          np.zeros((2, 3), np.float32), np.zeros(6, np.float32), np.zeros(2, np.float32), np.array([3, 2]),
          np.zeros((2, 2, 3), np.float32), np.zeros((2, 6)))
+
+
+def _warm_tick_barrier(loop) -> None:
+    """Compile (or load) the loop now, for the argument types ``ErrorModel.safety_points_in_window``
+    passes (a car's and a quadrotor's positions)."""
+    import numpy as np
+
+    for d in (2, 3):
+        z = np.zeros((2, d))
+        loop(1, np.ones(d), np.zeros(d), 0.0, np.zeros(d), 0.0, z, np.zeros(2), 0.5, 2, np.arange(d), 2,
+             np.zeros(6), z.copy(), z.copy())
 
 
 def _warm_tick_linearisation(loop) -> None:

@@ -40,7 +40,7 @@ from typing import Protocol, Sequence
 
 import numpy as np
 
-from vflpcd.core.control.barrier import HorizonBarrier, safety_points
+from vflpcd.core.control.barrier import HorizonBarrier
 from vflpcd.core.control.ebrhrl import EbRHRL, KernelFeatures
 from vflpcd.core.control.error_model import ErrorModel, Limits, TickFrame
 from vflpcd.core.control.game_region import threat_at
@@ -852,17 +852,19 @@ class VFLPC(ControllerBase):
         (``_no_threat``)."""
         self.last_threats = ()
         p = self.params
-        movers = [o for o in obstacles if o.moving] if p.mu != 0.0 and p.max_threats != 0 else []
-        if not movers:                                      # static obstacles are the guidance's
+        if p.mu == 0.0 or p.max_threats == 0 or not obstacles:
             return self._no_threat
         grow = self.body_radius + self.safety_margin
-        vel_l = vel.tolist()
+        vel_l, pos_l = vel.tolist(), pos.tolist()
         v_e = math.hypot(*vel_l)
         near = []
-        for o in movers:
-            relative = (o.center_at(t) - pos).tolist()
-            if threat_at(relative, vel_l, v_e, math.hypot(*o.velocity.tolist()), o.shape.bounding_radius() + grow,
-                         p.l_safe):
+        for o in obstacles:
+            v_o = o.velocity.tolist()
+            if not any(v_o):                                # static obstacles are the guidance's
+                continue
+            dt = t - o.stamp            # relative: ``ObstacleState.center_at`` less pos, in floats
+            relative = [c + v * dt - q for c, v, q in zip(o.center.tolist(), v_o, pos_l)]
+            if threat_at(relative, vel_l, v_e, math.hypot(*v_o), o.shape.bounding_radius() + grow, p.l_safe):
                 near.append((math.hypot(*relative), len(near), o))
         if not near:
             return self._no_threat
@@ -870,12 +872,10 @@ class VFLPC(ControllerBase):
         self.last_threats = tuple(o.id for o in chosen)
         times = t + self._horizon_offsets
         p_world = ref[:, self._pos_index]
-        xs, ns = [], []
-        for o in chosen:
-            x_p, n_p = safety_points(o, p_world, times, grow)
-            xs.append(self.errors.to_window(frame, x_p))
-            ns.append(self.errors.to_window(frame, n_p, vectors=True))
-        return HorizonBarrier(self._pos_index, frame.x_r[:, self._pos_index], np.array(xs), np.array(ns),
+        xs, ns = np.empty((2, len(chosen)) + p_world.shape)
+        for k, o in enumerate(chosen):
+            self.errors.safety_points_in_window(frame, o, p_world, times, grow, xs[k], ns[k])
+        return HorizonBarrier(self._pos_index, frame.x_r[:, self._pos_index], xs, ns,
                               np.full(len(chosen), p.mu), p.barrier_length)
 
     def _solve(self, horizon, rate: RateForm | None, barrier: HorizonBarrier) -> np.ndarray:

@@ -33,6 +33,8 @@ from typing import Callable
 import numpy as np
 import scipy.linalg as sl
 
+from vflpcd.core.control.barrier import safety_points
+from vflpcd.core.control.barrier_kernel import FORMS
 from vflpcd.core.control.problem import HorizonProblem
 from vflpcd.core.control.tick_kernel import KIND_NONE, KIND_PLANAR, KIND_POSITION
 from vflpcd.core.dynamics.compensation import KoopmanCompensation
@@ -49,7 +51,9 @@ class TickLoops:
     a deep Koopman lift of it in one call) and ``linearisation_loop``,
     ``gp_kernel.corrected_next_loop`` (the GP's mean in c_tau), ``rate_kernel.increment_loop`` (the
     increment form's fill, ``RateForm.increments``), ``tick_kernel.command_loop`` (the command
-    clipped into the limits, ``tick_horizon.clipped_command``), ``horizon_reference.strided_rows`` (the
+    clipped into the limits, ``tick_horizon.clipped_command``), ``barrier_kernel.safety_points_loop`` (a
+    threat's safety points in the window, ``ErrorModel.safety_points_in_window``),
+    ``horizon_reference.strided_rows`` (the
     horizon's reference rows, ``HorizonReference.at``) and ``horizon_kernel.horizon_command_loop``
     (the problem, its solve and the command in one call, ``tick_horizon.CompiledHorizon``)."""
 
@@ -61,6 +65,7 @@ class TickLoops:
     reference: Callable | None = None
     horizon: Callable | None = None
     lift: Callable | None = None
+    barrier: Callable | None = None
 
 
 @dataclass(frozen=True)
@@ -129,6 +134,7 @@ class ErrorModel:
         self.tick_loops = tick_loops
         self._lifts: dict[int, tuple] = {}            # window length -> (its lifter, its float32 buffer)
         self._position = np.array(self.layout.position, dtype=np.int64)
+        self._window_pose = (_KINDS[self.layout.kind], self._position, self.layout.heading or 0)   # the loops' layout
         self._no_G, self._no_g = np.zeros((self.N + 1, 0, self.n)), np.zeros((self.N + 1, 0))   # no half-planes (empty)
 
     def frame(self, state: np.ndarray, reference: np.ndarray) -> TickFrame:
@@ -153,9 +159,8 @@ class ErrorModel:
             lifter = self.model.lifter(T)
             lift = self._lifts[T] = (lifter, np.empty((T, self.model.n_x), np.float32), lifter.encoder())
         if self.tick_loops is not None:                  # the same numbers, compiled
-            lay, loops = self.layout, self.tick_loops
-            pose = (state, reference, _KINDS[lay.kind], self._position, lay.heading or 0, self.model.x_mean,
-                    self.model.x_std, window, lift[1])
+            loops = self.tick_loops
+            pose = (state, reference, *self._window_pose, self.model.x_mean, self.model.x_std, window, lift[1])
             if loops.lift is not None and lift[2] is not None:
                 U = np.empty((T, self.model.n_K))
                 loops.lift(*pose, *lift[2], U)
@@ -214,6 +219,22 @@ class ErrorModel:
         A_J, B_J = m.jacobians(U_r[:-1], u_r)
         return (u_r, pred + (B_tau @ u_r[..., None])[..., 0], np.ascontiguousarray(A_J[:, :-1, :-1]),
                 np.ascontiguousarray(B_J[:, :-1]))
+
+    def safety_points_in_window(self, frame: TickFrame, obstacle, points: np.ndarray, times: np.ndarray,
+                                grow: float, x_p: np.ndarray, normal: np.ndarray) -> None:
+        """``barrier.safety_points`` of ``obstacle`` at the world positions points (T, d) and times (T,),
+        taken into the tick's window frame (``to_window``), written into x_p and normal (T, d): one
+        compiled call (``tick_loops.barrier``) for a shape with a closed form, else numpy."""
+        form = FORMS.get(obstacle.shape.closed_form)
+        loops = self.tick_loops
+        if loops is not None and loops.barrier is not None and form is not None:
+            loops.barrier(form, obstacle.shape.support_extent(), obstacle.center, float(obstacle.yaw),
+                          obstacle.velocity, float(obstacle.stamp), points, times, float(grow), *self._window_pose,
+                          frame.origin, x_p, normal)
+            return
+        world, n = safety_points(obstacle, points, times, grow)
+        x_p[:] = self.to_window(frame, world)
+        normal[:] = self.to_window(frame, n, vectors=True)
 
     def to_window(self, frame: TickFrame, points: np.ndarray, vectors: bool = False) -> np.ndarray:
         """World points (or direction vectors) (..., d) -> the tick's window frame."""
