@@ -54,9 +54,10 @@ def test_the_loop_is_loaded_before_the_first_tick_for_the_types_the_solver_passe
 
 
 def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
-    """A run of VF-LPC with the online GP (its samples tested and folded in, its window, linearisation,
-    GP correction, increment form, command clip, reference rows and horizon compiled), a refit's model
-    coming back from a worker, and a quadrotor's run add no signature to the warmed loops: none
+    """A run of VF-LPC with the online GP (its samples tested and folded in, its window and lift,
+    linearisation, GP correction, increment form, command clip, reference rows and horizon compiled), a
+    refit's model coming back from a worker, a quadrotor's run, a car behind a slow car (the barrier's
+    safety points) and a perceived mover (read-only arrays) add no signature to the warmed loops: none
     compiles in a tick."""
     import dataclasses
     import pickle
@@ -64,14 +65,17 @@ def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
     import numpy as np
 
     from sim.runner import run_closed_loop
+    from vflpcd.base.paths import config_dir
     from vflpcd.config.scenarios import load_scenario
     from vflpcd.controllers import make_controller
+    from vflpcd.core.obstacles import ObstacleState
+    from vflpcd.core.shapes import Circle
 
     gp, tick, ald = loops.gp_add_loop(), loops.tick_loops(), loops.ald_loop()
     compiled = (gp, tick.window, tick.linearisation, tick.correction, tick.increment, tick.command, tick.reference,
-                ald, tick.horizon)
+                ald, tick.horizon, tick.lift, tick.barrier, loops.encoder_loop())
     before = tuple(len(loop.signatures) for loop in compiled)
-    assert before == (1, 1, 1, 1, 2, 1, 1, 1, 1)   # the increment form: a nominal B and a scheduled one
+    assert before == (1, 1, 1, 1, 2, 1, 1, 1, 1, 1, 1, 1)   # the increment form: a nominal B and a scheduled one
     scenario = dataclasses.replace(load_scenario("racing_track"), t_max=6.0)
     ctrl = make_controller("vflpc_ml", scenario)
     run_closed_loop(scenario, ctrl, 0)
@@ -86,6 +90,26 @@ def test_the_tick_and_gp_loops_are_warmed_for_the_types_a_learning_run_passes():
     assert ctrl._horizon._loop is tick.reference and ctrl._tick_horizon.loop is tick.horizon
     quad = dataclasses.replace(load_scenario("uav_3d"), t_max=1.0)      # its horizon without an increment form
     run_closed_loop(quad, make_controller("vflpc", quad), 0)
+    slow_car = dataclasses.replace(load_scenario(config_dir() / "scenarios" / "suite" / "follow_slow_car.toml"),
+                                   t_max=8.0)                              # a mover threatening: the barrier on
+    car = make_controller("vflpc", slow_car)
+    threats = []
+    in_window = car.errors.safety_points_in_window
+
+    def counted(frame, obstacle, *args):
+        threats.append(obstacle.id)
+        return in_window(frame, obstacle, *args)
+
+    car.errors.safety_points_in_window = counted
+    run_closed_loop(slow_car, car, 0)
+    assert len(threats) > 20                                              # the barrier's points, compiled
+    frame = car._last[0]
+    centre, velocity = np.array([3.0, 0.5]), np.array([1.0, 0.0])
+    centre.flags.writeable = velocity.flags.writeable = False             # as ``perception`` hands them over
+    perceived = ObstacleState("ped", Circle(0.3), centre, 0.0, velocity, 0.0)
+    out = np.empty((2, car.N + 1, 2))
+    car.errors.safety_points_in_window(frame, perceived, np.zeros((car.N + 1, 2)), np.arange(car.N + 1) * 0.05, 1.0,
+                                       out[0], out[1])
     assert tuple(len(loop.signatures) for loop in compiled) == before
 
 

@@ -228,9 +228,12 @@ class ErrorModel:
         form = FORMS.get(obstacle.shape.closed_form)
         loops = self.tick_loops
         if loops is not None and loops.barrier is not None and form is not None:
-            loops.barrier(form, obstacle.shape.support_extent(), obstacle.center, float(obstacle.yaw),
-                          obstacle.velocity, float(obstacle.stamp), points, times, float(grow), *self._window_pose,
-                          frame.origin, x_p, normal)
+            # the arrays in the warmed types (a perceived obstacle's are read-only, ``perception``; a
+            # column selection is Fortran-ordered): another type would compile inside the tick
+            loops.barrier(form, obstacle.shape.support_extent(), np.array(obstacle.center, dtype=float),
+                          float(obstacle.yaw), np.array(obstacle.velocity, dtype=float), float(obstacle.stamp),
+                          np.ascontiguousarray(points, dtype=float), np.ascontiguousarray(times, dtype=float),
+                          float(grow), *self._window_pose, frame.origin, x_p, normal)
             return
         world, n = safety_points(obstacle, points, times, grow)
         x_p[:] = self.to_window(frame, world)
