@@ -198,12 +198,10 @@ def cmd_bench_dynamics(args) -> int:
     from sim.bench.dynamics import bench_dynamics
     from vflpcd.config.koopman_file import load_koopman
     from vflpcd.base.paths import config_dir
-
-    path = args.model or config_dir() / "models" / "dynamic_bicycle.npz"
     from vflpcd.controllers.loops import encoder_loop
 
+    path = args.model or config_dir() / "models" / "dynamic_bicycle.npz"
     model = load_koopman(path, state_names=("X", "Y", "psi", "vx", "vy", "omega"), control_names=("a_x", "delta_f"))
-    if encoder_loop() is not None:
-        model.compile_encoder(encoder_loop())        # the lift as a controller runs it
+    model.compile_encoder(encoder_loop())        # the lift as a controller runs it
     bench_dynamics(model, args.out, args.seed)
     return 0

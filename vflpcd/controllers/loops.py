@@ -49,9 +49,9 @@ def scheduled_problem_loop():
 
 @lru_cache(maxsize=1)
 def tick_loops():
-    """The tick's loops (``tick_kernel``'s window and nominal linearisation, ``gp_kernel``'s correction
-    by the GP's mean, ``rate_kernel``'s increment fill) compiled and loaded (``_warm_tick_*``), as ``error_model.TickLoops``, or None
-    without numba."""
+    """The tick's loops (``error_model.TickLoops``: the window and its lift, the nominal linearisation,
+    the GP's correction, the increment fill, the command clip, the reference rows, the horizon in one
+    call, a threat's safety points) compiled and loaded (``_warm_tick_*``), or None without numba."""
     from vflpcd.core.control.barrier_kernel import safety_points_loop
     from vflpcd.core.control.error_model import TickLoops
     from vflpcd.core.control.horizon_reference import strided_rows
@@ -360,13 +360,12 @@ def _warm_tick_lift(loop) -> None:
 
 def _warm_tick_barrier(loop) -> None:
     """Compile (or load) the loop now, for the argument types ``ErrorModel.safety_points_in_window``
-    passes (a car's and a quadrotor's positions)."""
+    passes (a quadrotor's 3-D positions are arrays of the same types as a car's 2-D ones)."""
     import numpy as np
 
-    for d in (2, 3):
-        z = np.zeros((2, d))
-        loop(1, np.ones(d), np.zeros(d), 0.0, np.zeros(d), 0.0, z, np.zeros(2), 0.5, 2, np.arange(d), 2,
-             np.zeros(6), z.copy(), z.copy())
+    z = np.zeros((2, 2))
+    loop(1, np.ones(2), np.zeros(2), 0.0, np.zeros(2), 0.0, z, np.zeros(2), 0.5, 2, np.arange(2), 2, np.zeros(6),
+         z.copy(), z.copy())
 
 
 def _warm_tick_linearisation(loop) -> None:

@@ -106,8 +106,7 @@ def make_vflpc(scenario, *, compensation: bool = False, solver=None, name: str =
     replaces Eb-RHRL; ``period``: the control tick period (default the model's dt)."""
     params = load_params(scenario.platform)
     model = load_koopman(model_path or config_dir() / "models" / MODELS[scenario.platform])
-    if encoder_loop() is not None:
-        model.compile_encoder(encoder_loop())
+    model.compile_encoder(encoder_loop())
     period = model.dt if period is None else float(period)
     planner_cls = GuidancePlanner if scenario.dim == 2 else GuidancePlanner3D
     planner = planner_cls(scenario.path, scenario.guidance, scenario.v_desired, scenario.a_lat_max,

@@ -86,7 +86,7 @@ class KoopmanModel(LiftedLinearModel):
 
     def compile_encoder(self, loop) -> None:
         """Run the encoder by ``loop``, ``encoder_kernel.encoder_loop`` compiled (the same bits as its
-        numpy layers, which run without one)."""
+        numpy layers, which run without one: None, where numba is missing)."""
         self._encoder_loop = loop
 
     @property
